@@ -1,0 +1,97 @@
+"""``pld-slam eval``: accuracy of an estimated trajectory against ground truth."""
+
+import json
+from pathlib import Path
+
+import click
+
+from pld_slam.datasets import open_sequence
+from pld_slam.errors import DatasetError, TrajectoryError
+from pld_slam.eval import EvalResult, evaluate, plot_error_over_time, plot_trajectory_top_view
+from pld_slam.io.trajectory import FORMATS, detect_format, read_trajectory
+from pld_slam.trajectory import Trajectory
+
+_ROWS = (
+    ("ATE RMSE", "ate_rmse_m", "m", "{:.4f}"),
+    ("RPE trans RMSE (1 frame)", "rpe_trans_rmse_m", "m", "{:.4f}"),
+    ("RPE rot RMSE (1 frame)", "rpe_rot_rmse_deg", "deg", "{:.4f}"),
+    ("KITTI t_rel", "t_rel_pct", "%", "{:.2f}"),
+    ("KITTI r_rel", "r_rel_deg_per_100m", "deg/100 m", "{:.2f}"),
+    ("matched poses", "n_matched", "", "{:d}"),
+)
+
+
+def format_result_table(result: EvalResult) -> str:
+    """The metrics as an aligned two-column text table (None shows as n/a)."""
+    values = result.as_dict()
+    lines = []
+    for label, key, unit, fmt in _ROWS:
+        value = values[key]
+        text = "n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip()
+        lines.append(f"{label:<26}{text}")
+    return "\n".join(lines)
+
+
+def _stamp_by_frame(estimate: Trajectory, frame_times, est_path: Path) -> Trajectory:
+    """A KITTI-format estimate (no timestamps) given the times of the sequence's frames."""
+    if len(estimate) > len(frame_times):
+        raise TrajectoryError(
+            f"{est_path}: {len(estimate)} poses but the sequence has {len(frame_times)} frames"
+        )
+    return Trajectory(frame_times[: len(estimate)], estimate.poses)
+
+
+def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bool]:
+    """Ground truth, estimate, and whether to pair them by row index instead of timestamp.
+
+    ``gt`` is a trajectory file or a sequence folder (its ground truth in rectified cam0,
+    first pose identity). KITTI files carry no timestamps: two KITTI files pair by row;
+    a KITTI estimate against a sequence folder takes the frame times of the sequence.
+    """
+    est_format = detect_format(est) if fmt == "auto" else fmt
+    estimate = read_trajectory(est, est_format)
+    if gt.is_dir():
+        sequence = open_sequence(gt)
+        if sequence.groundtruth is None:
+            raise DatasetError(f"{gt}: this sequence has no ground truth")
+        if est_format == "kitti":
+            estimate = _stamp_by_frame(estimate, sequence.timestamps, est)
+        return sequence.groundtruth, estimate, False
+    gt_format = detect_format(gt) if fmt == "auto" else fmt
+    if (gt_format == "kitti") != (est_format == "kitti"):
+        raise TrajectoryError(
+            f"cannot pair {gt} ({gt_format}) with {est} ({est_format}): KITTI files have no "
+            "timestamps; give both in KITTI format, or the sequence folder as GT"
+        )
+    return read_trajectory(gt, gt_format), estimate, gt_format == "kitti"
+
+
+@click.command("eval")
+@click.argument("gt", type=click.Path(exists=True, path_type=Path))
+@click.argument("est", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--format", "fmt", type=click.Choice(("auto",) + FORMATS), default="auto",
+              show_default=True, help="Format of the trajectory files (auto: from their content).")
+@click.option("--align", type=click.Choice(("se3", "sim3", "none")), default="se3", show_default=True,
+              help="Alignment before the ATE: rigid (SE(3) Umeyama), with scale, or none.")
+@click.option("--max-diff", type=click.FloatRange(min=0.0), default=0.01, show_default=True,
+              help="Largest timestamp difference [s] when pairing poses by time.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@click.option("--plot", "plot_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Also write trajectory_top_view.png and ate_over_time.png here.")
+def eval_command(gt: Path, est: Path, fmt: str, align: str, max_diff: float, as_json: bool,
+                 plot_dir: Path | None) -> None:
+    """Compare the estimated trajectory EST with the ground truth GT.
+
+    GT is a trajectory file (KITTI, TUM or EuRoC) or a sequence folder whose ground truth
+    pld-slam reads. Prints ATE RMSE, RPE, and the KITTI devkit t_rel / r_rel (on paths of
+    at least 100 m).
+    """
+    groundtruth, estimate, by_index = load_pair(gt, est, fmt)
+    result = evaluate(groundtruth, estimate, align=align, by_index=by_index, max_diff=max_diff)
+    if plot_dir is not None:
+        plot_dir.mkdir(parents=True, exist_ok=True)
+        plot_trajectory_top_view(plot_dir / "trajectory_top_view.png", groundtruth, estimate,
+                                 title=est.name, align=align, by_index=by_index, max_diff=max_diff)
+        plot_error_over_time(plot_dir / "ate_over_time.png", groundtruth, estimate,
+                             align=align, by_index=by_index, max_diff=max_diff)
+    click.echo(json.dumps(result.as_dict()) if as_json else format_result_table(result))

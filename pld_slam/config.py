@@ -1,0 +1,293 @@
+"""Every parameter of pld-slam, as typed dataclasses with the paper's values as defaults.
+
+A configuration is built from the defaults, then YAML files (``configs/*.yaml``) laid
+over them in order, then ``section.key=value`` overrides. Each layer is validated as it
+is applied: an unknown section or key, a value of the wrong type, or a value outside its
+range is a `ConfigError` that names the file (or override) and the key.
+
+YAML layout: one mapping per section, e.g.::
+
+    filters:
+      point_grid_alpha: 1.5
+    loop:
+      detector: ggs
+"""
+
+import dataclasses
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from pld_slam.errors import ConfigError
+
+
+def _param(default: Any, doc: str, low: float | None = None, high: float | None = None) -> Any:
+    """A config field with its documentation and an optional closed range [low, high]."""
+    return field(default=default, metadata={"doc": doc, "low": low, "high": high})
+
+
+@dataclass(frozen=True)
+class SystemConfig:
+    """Run-wide settings."""
+
+    seed: int = _param(0, "seed of every random choice (RANSAC, k-means): same seed, same output", 0)
+
+
+@dataclass(frozen=True)
+class PointsConfig:
+    """ORB point features: detection, bucketing over the image, stereo matching."""
+
+    n_features: int = _param(1500, "ORB keypoints per image before stereo matching", 1)
+    scale_factor: float = _param(1.2, "ORB pyramid scale between levels (ORB-SLAM2: 1.2)", 1.01, 2.0)
+    n_levels: int = _param(8, "ORB pyramid levels (ORB-SLAM2: 8)", 1, 16)
+    fast_threshold: int = _param(20, "FAST corner threshold [grey levels] (ORB-SLAM2: 20)", 1, 255)
+    oversampling: float = _param(
+        3.0, "ORB detects oversampling * n_features corners; bucketing keeps n_features", 1.0, 20.0
+    )
+    bucket_size: int = _param(32, "side of the square bucketing cells [px]", 4)
+    stereo_row_tolerance: float = _param(
+        2.0, "stereo candidates lie within this many rows, times scale_factor^octave [px]", 0.0
+    )
+    stereo_max_distance: int = _param(64, "largest Hamming distance of a stereo match [bits]", 0, 256)
+    stereo_ratio: float = _param(
+        0.8, "ratio test: best distance < ratio * best rival elsewhere on the row", 0.0, 1.0
+    )
+    sad_half_window: int = _param(5, "half side of the SAD window of sub-pixel refinement [px at the octave]", 1)
+    sad_search_radius: int = _param(5, "SAD search +- this many columns around the match [px at the octave]", 1)
+    min_depth_baselines: float = _param(1.0, "nearest stereo point, in baselines (disparity <= fx / this)", 0.01)
+    max_depth_baselines: float = _param(
+        200.0, "farthest stereo point, in baselines (disparity >= fx / this)", 0.01
+    )
+
+
+@dataclass(frozen=True)
+class LinesConfig:
+    """LSD line segments and the two line error terms of pose estimation (ablation switches)."""
+
+    enabled: bool = _param(True, "use line segments at all (off: a point-only system)")
+    vertical_error: bool = _param(True, "line vertical error: endpoint distance to the detected line")
+    horizontal_error: bool = _param(True, "line horizontal error: endpoint error along the line")
+    lsd_scale: float = _param(0.5, "LSD works on the image scaled by this (OpenCV default 0.8)", 0.1, 1.0)
+    min_length: float = _param(0.02, "shortest segment kept, as a fraction of the image diagonal", 0.0, 1.0)
+    max_lines: int = _param(200, "segments kept per image, longest first", 1)
+    min_angle_from_horizontal: float = _param(
+        0.17, "segments closer to horizontal than this [rad] have no stable disparity (0.17 = 10 deg)",
+        0.01, 1.5707963267948966,
+    )
+    stereo_max_angle_difference: float = _param(
+        0.1, "largest direction difference of a stereo line match [rad]", 0.0, 3.141592653589793
+    )
+    stereo_min_row_overlap: float = _param(
+        0.5, "shared row range of a stereo line match, as a fraction of the shorter one", 0.0, 1.0
+    )
+    stereo_max_distance: int = _param(80, "largest LBD Hamming distance of a stereo line match [bits]", 0, 256)
+    stereo_ratio: float = _param(
+        0.8, "ratio test: best distance < ratio * best rival elsewhere on the row", 0.0, 1.0
+    )
+    min_depth_baselines: float = _param(1.0, "nearest line endpoint, in baselines (disparity <= fx / this)", 0.01)
+    max_depth_baselines: float = _param(
+        200.0, "farthest line endpoint, in baselines (disparity >= fx / this)", 0.01
+    )
+
+
+@dataclass(frozen=True)
+class FiltersConfig:
+    """The two frame-to-frame mismatch filters (paper, sections Track_a and Track_b)."""
+
+    point_grid: bool = _param(True, "point mismatch filter by grid_cval")
+    point_grid_cols: int = _param(64, "grid columns of the point filter (paper: 64 x 48)", 1)
+    point_grid_rows: int = _param(48, "grid rows of the point filter (paper: 64 x 48)", 1)
+    point_grid_alpha: float = _param(
+        1.5, "a match is an outlier when |g_l - g_r| > alpha times the cell mean (paper: 1.5)", 0.0
+    )
+    line_llg: bool = _param(True, "line mismatch filter by local line groups (LLG)")
+    line_llg_factor: float = _param(
+        2.0, "a match is an outlier when its angle or midpoint shift exceeds this times the LLG mean (paper: 2)", 0.0
+    )
+
+
+@dataclass(frozen=True)
+class DynamicConfig:
+    """Dynamic feature detection (paper, section Track_c; ablation switches)."""
+
+    grid: bool = _param(True, "dynamic grid: drop points in cells that disagree with the motion model")
+    llg: bool = _param(True, "dynamic LLG: drop lines in groups that disagree with the motion model")
+
+
+@dataclass(frozen=True)
+class GgsConfig:
+    """Global gray similarity descriptor of the left image (paper, section Track_e)."""
+
+    scale: float = _param(0.8, "scale of the second, shrunk copy of the image (paper: 0.8)", 0.05, 1.0)
+    grid_rows: int = _param(3, "grid rows per image (paper: 3 x 4)", 1)
+    grid_cols: int = _param(4, "grid columns per image (paper: 3 x 4)", 1)
+    bins: int = _param(256, "grey-level histogram bins per cell (paper: 256)", 2, 256)
+
+
+@dataclass(frozen=True)
+class KeyframesConfig:
+    """GGS keyframe selection (paper, section LM)."""
+
+    ggs_gain: float = _param(
+        0.4, "GGS_th = GGS_pKF + gain * (GGS_pKF+1 - GGS_ppKF+1) (paper: 0.4)", 0.0
+    )
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """Local map and covisibility graph (paper, section LM)."""
+
+    covisibility_min_shared: int = _param(
+        20, "landmarks two keyframes must share for a covisibility edge (paper: 20)", 1
+    )
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Loop detection and correction (paper, section LC)."""
+
+    detector: Literal["ggs", "bow"] = _param("ggs", "place recognition: GGS (paper) or bag of words (rival)")
+    lc_rat_alpha: float = _param(0.001, "alpha of lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl (paper: 0.001)", 0.0)
+    initial_inlier_ratio: float = _param(0.5, "initial inlier ratio of a loop candidate (paper: 0.5)", 0.0, 1.0)
+    lc_rat_threshold: float = _param(0.2, "a candidate whose lc_rat lies below this is rejected (paper: 0.2)", 0.0)
+    pose_graph_min_shared_ratio: float = _param(
+        0.2, "share of common features for a pose-graph edge (paper: 20%)", 0.0, 1.0
+    )
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration: one field per YAML section."""
+
+    system: SystemConfig = field(default_factory=SystemConfig)
+    points: PointsConfig = field(default_factory=PointsConfig)
+    lines: LinesConfig = field(default_factory=LinesConfig)
+    filters: FiltersConfig = field(default_factory=FiltersConfig)
+    dynamic: DynamicConfig = field(default_factory=DynamicConfig)
+    ggs: GgsConfig = field(default_factory=GgsConfig)
+    keyframes: KeyframesConfig = field(default_factory=KeyframesConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
+
+
+def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, value: Any) -> Any:
+    """Return ``value`` converted to the field's type ``kind``, or raise `ConfigError`.
+
+    Accepted: bool only for bool (YAML ``true``/``false``); int for int (not bool); int or
+    float for float; one of the listed strings for a Literal.
+    """
+    got = f"{type(value).__name__} {value!r}"
+    if typing.get_origin(kind) is Literal:
+        choices = typing.get_args(kind)
+        if value not in choices:
+            raise ConfigError(f"{where}: {name} must be one of {', '.join(choices)}, got {value!r}")
+        return value
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: {name} must be true or false, got {got}")
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: {name} must be an integer, got {got}")
+    elif kind is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: {name} must be a number, got {got}")
+        value = float(value)
+    low, high = spec.metadata["low"], spec.metadata["high"]
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = f"[{low if low is not None else '-inf'}, {high if high is not None else 'inf'}]"
+        raise ConfigError(f"{where}: {name} = {value!r} is outside {bounds}")
+    return value
+
+
+def _section_types() -> dict[str, type]:
+    return {f.name: typing.get_type_hints(Config)[f.name] for f in dataclasses.fields(Config)}
+
+
+def _apply_section(section: Any, section_name: str, values: Any, where: str) -> Any:
+    """A copy of one section dataclass with ``values`` (a mapping) applied and validated."""
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{where}: section {section_name} must be a mapping of keys to values")
+    specs = {spec.name: spec for spec in dataclasses.fields(section)}
+    kinds = typing.get_type_hints(type(section))
+    changes = {}
+    for key, value in values.items():
+        name = f"{section_name}.{key}"
+        if key not in specs:
+            raise ConfigError(
+                f"{where}: unknown key {name} (known: {', '.join(sorted(specs))})"
+            )
+        changes[key] = _check_value(where, name, kinds[key], specs[key], value)
+    return dataclasses.replace(section, **changes)
+
+
+def apply_mapping(config: Config, data: Any, where: str) -> Config:
+    """``config`` with a nested mapping ``{section: {key: value}}`` laid over it.
+
+    ``where`` names the source (a file path or ``--set``) in error messages.
+    """
+    if data is None:
+        return config
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping of sections, got {type(data).__name__}")
+    sections = _section_types()
+    changes = {}
+    for section_name, values in data.items():
+        if section_name not in sections:
+            raise ConfigError(
+                f"{where}: unknown section {section_name} (known: {', '.join(sections)})"
+            )
+        current = getattr(config, section_name)
+        changes[section_name] = _apply_section(current, section_name, values, where)
+    return dataclasses.replace(config, **changes)
+
+
+def read_yaml(path: Path) -> Any:
+    """Parsed content of a YAML file, or `ConfigError` naming the file."""
+    try:
+        text = Path(path).read_text()
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read config ({error.strerror})") from error
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}{line}: not valid YAML") from error
+
+
+def parse_override(text: str) -> dict[str, dict[str, Any]]:
+    """``"section.key=value"`` as ``{section: {key: value}}``; the value is read as YAML."""
+    dotted, sep, raw = text.partition("=")
+    section, dot, key = dotted.strip().partition(".")
+    if not sep or not dot or not section or not key or "." in key:
+        raise ConfigError(f"--set {text}: expected section.key=value")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else raw
+    except yaml.YAMLError as error:
+        raise ConfigError(f"--set {text}: value is not valid YAML") from error
+    return {section: {key: value}}
+
+
+def load_config(paths: Sequence[Path] = (), overrides: Sequence[str] = ()) -> Config:
+    """The defaults, then each YAML file in ``paths``, then each ``section.key=value`` override."""
+    config = Config()
+    for path in paths:
+        config = apply_mapping(config, read_yaml(path), str(path))
+    for text in overrides:
+        config = apply_mapping(config, parse_override(text), f"--set {text}")
+    return config
+
+
+def config_to_dict(config: Config) -> dict[str, dict[str, Any]]:
+    """The configuration as plain nested dicts (for YAML and JSON reports)."""
+    return dataclasses.asdict(config)
+
+
+def dump_config(config: Config) -> str:
+    """The configuration as YAML text that `load_config` reads back to the same value."""
+    return yaml.safe_dump(config_to_dict(config), sort_keys=False)

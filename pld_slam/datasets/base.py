@@ -1,0 +1,123 @@
+"""`StereoSequence`: the one interface every dataset layout is read into.
+
+A sequence knows its rectified `StereoCamera`, the timestamp of every frame, the image
+files, and (where the dataset has it) ground truth ``T_w_c`` of the rectified left camera
+with the first ground-truth pose at identity. Images are read only when a frame is asked
+for, so opening a 4,541-frame KITTI sequence costs a directory listing.
+"""
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from pld_slam.errors import DatasetError
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.trajectory import Trajectory
+
+Rectifier = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Maps a raw (left, right) grey pair to the rectified pair."""
+
+
+@dataclass(frozen=True)
+class StereoFrame:
+    """One rectified grey stereo pair: ``left`` and ``right`` are (H, W) uint8."""
+
+    index: int
+    timestamp: float
+    left: np.ndarray
+    right: np.ndarray
+
+
+def read_grey(path: Path) -> np.ndarray:
+    """Read an image file as (H, W) uint8 grey, or raise `DatasetError` naming the file."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise DatasetError(f"{path}: cannot read image (missing, empty or not an image)")
+    return image
+
+
+@dataclass(frozen=True)
+class StereoSequence:
+    """A stereo sequence on disk, read lazily frame by frame.
+
+    Attributes
+    ----------
+    name : str
+        Short name for reports (e.g. ``kitti_06``).
+    layout : str
+        Detected layout: ``kitti_odometry``, ``kitti_raw``, ``euroc`` or ``generic``.
+    root : Path
+        The folder the sequence was opened from.
+    camera : StereoCamera
+        The rectified stereo camera the frames are delivered in.
+    timestamps : np.ndarray
+        (N,) frame times [s], strictly increasing.
+    left_paths, right_paths : sequence of Path
+        (N,) image files of the left and right cameras.
+    groundtruth : Trajectory or None
+        ``T_w_c`` of the rectified left camera at (a subset of) the frame times, first
+        ground-truth pose = identity; None where the dataset has none.
+    rectifier : callable or None
+        Applied to each raw pair (EuRoC and unrectified generic rigs); None when the
+        files are already rectified.
+    dynamic_mask_paths : sequence of Path or None
+        (N,) masks of the left images, non-zero where a pixel belongs to a moving object
+        (synthetic sequences only).
+    """
+
+    name: str
+    layout: str
+    root: Path
+    camera: StereoCamera
+    timestamps: np.ndarray
+    left_paths: Sequence[Path]
+    right_paths: Sequence[Path]
+    groundtruth: Trajectory | None = None
+    rectifier: Rectifier | None = field(default=None, repr=False)
+    dynamic_mask_paths: Sequence[Path] | None = None
+
+    def __post_init__(self) -> None:
+        if len(self.left_paths) != len(self.right_paths):
+            raise DatasetError(
+                f"{self.root}: {len(self.left_paths)} left images but "
+                f"{len(self.right_paths)} right images"
+            )
+        if len(self.timestamps) != len(self.left_paths):
+            raise DatasetError(
+                f"{self.root}: {len(self.timestamps)} timestamps for "
+                f"{len(self.left_paths)} image pairs"
+            )
+        if len(self.left_paths) == 0:
+            raise DatasetError(f"{self.root}: no images")
+
+    def __len__(self) -> int:
+        return len(self.left_paths)
+
+    def __getitem__(self, index: int) -> StereoFrame:
+        """Read, and rectify where needed, frame ``index``; unreadable files raise here."""
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} frames")
+        index %= len(self)
+        left = read_grey(self.left_paths[index])
+        right = read_grey(self.right_paths[index])
+        if left.shape != right.shape:
+            raise DatasetError(
+                f"{self.right_paths[index]}: size {right.shape[::-1]} differs from the "
+                f"left image's {left.shape[::-1]}"
+            )
+        if self.rectifier is not None:
+            left, right = self.rectifier(left, right)
+        return StereoFrame(index, float(self.timestamps[index]), left, right)
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for index in range(len(self)):
+            yield self[index]
+
+    def dynamic_mask(self, index: int) -> np.ndarray | None:
+        """Boolean (H, W) mask of moving-object pixels in left frame ``index``, or None."""
+        if self.dynamic_mask_paths is None:
+            return None
+        return read_grey(self.dynamic_mask_paths[index]) > 0

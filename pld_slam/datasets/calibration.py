@@ -1,0 +1,149 @@
+"""Calibration files as key -> value maps, and the rectified camera of two projection matrices.
+
+Two on-disk forms are read into the same `Calibration`:
+
+- KITTI text files (``calib.txt``, ``calib_*.txt``): one ``KEY: numbers`` entry per line,
+  values kept as text until asked for, so non-numeric entries such as ``calib_time``
+  cost nothing;
+- YAML files (EuRoC ``sensor.yaml``, the generic ``calib.yaml``), including OpenCV's
+  ``%YAML:1.0`` first line, which PyYAML rejects and we drop.
+
+Every problem is a one-line `DatasetError` naming the file and, where there is one, the
+key: a missing file, a missing key, a value that is not numbers or has the wrong count.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from pld_slam.errors import DatasetError
+from pld_slam.geometry.camera import StereoCamera
+
+_OPENCV_YAML_DIRECTIVE = "%YAML"
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The entries of one calibration file; ``path`` is named in every error.
+
+    Keys of nested YAML mappings are written with dots: ``left.K``, ``T_BS.data``.
+    """
+
+    path: Path
+    entries: Mapping[str, Any]
+
+    def error(self, key: str, problem: str) -> DatasetError:
+        """A `DatasetError` saying ``problem`` about ``key`` of this file."""
+        return DatasetError(f"{self.path}: {key!r} {problem}")
+
+    def has(self, key: str) -> bool:
+        """Whether the (dotted) ``key`` is present."""
+        try:
+            self.value(key)
+        except DatasetError:
+            return False
+        return True
+
+    def value(self, key: str) -> Any:
+        """The raw value of the (dotted) ``key``; a missing key raises `DatasetError`."""
+        node: Any = self.entries
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise DatasetError(f"{self.path}: missing key {key!r}")
+            node = node[part]
+        return node
+
+    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
+        """The numbers of ``key`` as float64, reshaped (row-major) to ``shape``.
+
+        Parameters
+        ----------
+        key : str
+            Dotted key; its value is a whitespace-separated string (KITTI) or a number,
+            list or nested list (YAML).
+        shape : tuple of int or None
+            Expected shape; None returns the numbers flat, of any count.
+        """
+        raw = self.value(key)
+        try:
+            numbers = np.asarray(raw.split() if isinstance(raw, str) else raw, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.error(key, f"is not a list of numbers: {str(raw)[:60]!r}") from None
+        numbers = numbers.reshape(-1)
+        if shape is None:
+            return numbers
+        if numbers.size != int(np.prod(shape)):
+            raise self.error(key, f"has {numbers.size} numbers, expected {int(np.prod(shape))}")
+        return numbers.reshape(shape)
+
+
+def _require_file(path: Path, what: str) -> None:
+    """Raise `DatasetError` unless the calibration file ``path`` exists."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: {what} not found")
+
+
+def read_kitti_calibration(path: Path) -> Calibration:
+    """Read a KITTI ``KEY: value`` text file; blank lines are skipped.
+
+    A non-blank line without a colon raises `DatasetError` naming ``file:line``.
+    """
+    _require_file(path, "KITTI calibration file")
+    entries = {}
+    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        key, colon, value = line.partition(":")
+        if not colon:
+            raise DatasetError(f"{path}:{line_number}: expected 'KEY: values', got {line[:60]!r}")
+        entries[key.strip()] = value.strip()
+    return Calibration(path, entries)
+
+
+def read_yaml_calibration(path: Path) -> Calibration:
+    """Read a YAML calibration file (an OpenCV ``%YAML:1.0`` first line is dropped)."""
+    _require_file(path, "YAML calibration file")
+    text = path.read_text()
+    if text.startswith(_OPENCV_YAML_DIRECTIVE):
+        text = text.partition("\n")[2]
+    try:
+        entries = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        problem = " ".join(str(error).split())
+        raise DatasetError(f"{path}: not valid YAML ({problem})") from None
+    if not isinstance(entries, Mapping):
+        raise DatasetError(f"{path}: expected a YAML mapping of keys to values")
+    return Calibration(path, entries)
+
+
+def stereo_camera_from_projections(
+    P_left: np.ndarray, P_right: np.ndarray, width: int, height: int, source: Path
+) -> StereoCamera:
+    """The rectified `StereoCamera` of the two (3, 4) projection matrices of a rectified pair.
+
+    Intrinsics come from ``P_left``; the baseline [m] is
+    ``(P_left[0, 3] - P_right[0, 3]) / fx`` (``P_right[0, 3] = -fx * b`` when the left
+    camera is the reference, as in KITTI and ``cv2.stereoRectify``). A baseline that is
+    not positive (the right camera is not to the right: swapped images or a sign error in
+    the calibration) raises `DatasetError` naming ``source``, the calibration file.
+    """
+    fx = float(P_left[0, 0])
+    baseline = float(P_left[0, 3] - P_right[0, 3]) / fx
+    if not baseline > 0.0:
+        raise DatasetError(
+            f"{source}: the right camera is not to the right of the left one "
+            f"(baseline {baseline:.4g} m); are left and right swapped?"
+        )
+    return StereoCamera(
+        fx=fx,
+        fy=float(P_left[1, 1]),
+        cx=float(P_left[0, 2]),
+        cy=float(P_left[1, 2]),
+        baseline=baseline,
+        width=int(width),
+        height=int(height),
+    )

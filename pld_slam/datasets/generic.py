@@ -1,0 +1,185 @@
+"""Generic stereo layout, for rigs users record themselves: ``left/``, ``right/``, ``calib.yaml``.
+
+Folder::
+
+    SEQUENCE/
+      left/            left images, .png or .jpg, paired with right/ in file-name order
+      right/           right images, as many as left/
+      calib.yaml       the calibration below (required)
+      times.txt        optional: one time [s] per line and per image pair
+      groundtruth.txt  optional: TUM format, "timestamp tx ty tz qx qy qz qw"
+
+``calib.yaml``::
+
+    image_size: [width, height]                 # px, of the raw images
+    left:  {K: [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], distortion: [k1, k2, p1, p2]}
+    right: {K: [[...], [...], [...]], distortion: [k1, k2, p1, p2, k3]}
+    R: [[...], [...], [...]]   # rotation of the right camera w.r.t. the left:
+    t: [tx, ty, tz]            #   p_right = R p_left + t, t in metres
+    rectified: false           # optional, default false (see below)
+    fps: 10                    # optional, default 10 (see below)
+
+- ``distortion``: OpenCV radial-tangential coefficients, 4 (k1 k2 p1 p2) or 5 (+ k3).
+- ``rectified: false`` (the default): the images are raw; they are rectified as they
+  are read (`pld_slam.datasets.rectify`, ``alpha = 0``, same image size), which needs
+  every key above. Rectifying is the default because it is always correct: an
+  already rectified pair with zero distortion comes out unchanged.
+- ``rectified: true``: the images are already rectified. Only ``image_size``, ``left.K``
+  and ``t`` are read: both images share ``left.K``, ``R`` is the identity and
+  ``t = (-baseline, 0, 0)``; the other keys may be absent.
+- A right camera that is not to the right of the left one (``tx >= 0`` when rectified)
+  raises `DatasetError`: the images are swapped or ``t`` has the wrong sign.
+- Times: ``times.txt`` when present (strictly increasing), else frame index / ``fps``
+  with ``fps`` from ``calib.yaml`` (default 10 Hz, KITTI's rate), frame 0 at 0 s.
+- Ground truth: ``groundtruth.txt`` must give ``T_w_c`` of the *raw left camera* on the
+  clock of the frame times; that it does is the user's responsibility (a pose of the
+  rig body or of another sensor cannot be told apart). We rotate it into the rectified
+  left camera (``T_w_rect = T_w_left [R1^T | 0]``; the identity for ``rectified: true``),
+  give each frame the row nearest in time within `GROUNDTRUTH_MAX_OFFSET`, and move the
+  first pose to identity.
+
+The sequence name is the folder name.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.calibration import (
+    Calibration,
+    read_yaml_calibration,
+    stereo_camera_from_projections,
+)
+from pld_slam.datasets.files import IMAGE_SUFFIXES, groundtruth_at_frames, image_files, read_times
+from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import make_pose
+from pld_slam.io.trajectory import read_tum
+from pld_slam.trajectory import Trajectory
+
+LAYOUT = "generic"
+EXPECTED = "generic (left/, right/, calib.yaml; optional times.txt, groundtruth.txt)"
+
+DEFAULT_FPS = 10.0
+"""Frame rate [Hz] when neither ``times.txt`` nor ``fps`` is given."""
+
+GROUNDTRUTH_MAX_OFFSET = 0.005
+"""Largest time difference [s] between a frame and its ground-truth row: ground truth
+written at the frame times matches exactly up to rounding; 5 ms also admits 200 Hz
+motion capture."""
+
+_ROTATION_TOLERANCE = 1e-3  # largest |R R^T - I| entry accepted for ``R``
+_DISTORTION_SIZES = (4, 5)
+
+
+def matches(folder: Path) -> bool:
+    """Whether ``folder`` looks like a generic sequence (it has ``left/``)."""
+    return (folder / "left").is_dir()
+
+
+def load(folder: Path) -> StereoSequence:
+    """Open the generic sequence in ``folder`` (see the module docstring)."""
+    folder = folder.resolve()
+    left_paths = image_files(folder / "left", IMAGE_SUFFIXES)
+    right_paths = image_files(folder / "right", IMAGE_SUFFIXES)
+    calibration = read_yaml_calibration(folder / "calib.yaml")
+    timestamps = _frame_times(folder, len(left_paths), calibration)
+    if _is_rectified(calibration):
+        camera, rectifier, T_left_rect = _rectified_camera(calibration), None, np.eye(4)
+    else:
+        rectifier = _rectification(calibration)
+        camera, T_left_rect = rectifier.camera, rectifier.T_raw_rect
+    return StereoSequence(
+        name=folder.name,
+        layout=LAYOUT,
+        root=folder,
+        camera=camera,
+        timestamps=timestamps,
+        left_paths=left_paths,
+        right_paths=right_paths,
+        groundtruth=_groundtruth(folder / "groundtruth.txt", timestamps, T_left_rect),
+        rectifier=rectifier,
+    )
+
+
+def _is_rectified(calibration: Calibration) -> bool:
+    """The optional ``rectified`` flag (default false); anything but a boolean raises."""
+    if not calibration.has("rectified"):
+        return False
+    flag = calibration.value("rectified")
+    if not isinstance(flag, bool):
+        raise calibration.error("rectified", f"must be true or false, got {flag!r}")
+    return flag
+
+
+def _image_size(calibration: Calibration) -> tuple[int, int]:
+    """``(width, height)`` [px] of ``image_size``."""
+    width, height = calibration.array("image_size", (2,))
+    if width < 1 or height < 1 or width != int(width) or height != int(height):
+        raise calibration.error("image_size", "must be two positive whole numbers")
+    return int(width), int(height)
+
+
+def _frame_times(folder: Path, n_frames: int, calibration: Calibration) -> np.ndarray:
+    """Frame times (N,) [s]: ``times.txt`` if present, else index / ``fps``."""
+    times_path = folder / "times.txt"
+    if times_path.exists():
+        return read_times(times_path, n_frames)
+    fps = float(calibration.array("fps", (1,))[0]) if calibration.has("fps") else DEFAULT_FPS
+    if not fps > 0.0:
+        raise calibration.error("fps", f"must be positive, got {fps:g}")
+    return np.arange(n_frames) / fps
+
+
+def _rectified_camera(calibration: Calibration) -> StereoCamera:
+    """The camera of an already rectified pair: ``left.K`` shared, right at ``-t``."""
+    K = calibration.array("left.K", (3, 3))
+    t = calibration.array("t", (3,))
+    P_left = K @ np.eye(3, 4)
+    P_right = K @ make_pose(np.eye(3), t)[:3]
+    return stereo_camera_from_projections(
+        P_left, P_right, *_image_size(calibration), source=calibration.path
+    )
+
+
+def _distortion(calibration: Calibration, key: str) -> np.ndarray:
+    """The (4,) or (5,) radial-tangential coefficients of ``key``."""
+    coefficients = calibration.array(key)
+    if coefficients.size not in _DISTORTION_SIZES:
+        raise calibration.error(key, f"has {coefficients.size} numbers, expected 4 or 5")
+    return coefficients
+
+
+def _rotation(calibration: Calibration, key: str) -> np.ndarray:
+    """The (3, 3) rotation matrix of ``key``; a matrix that is not a rotation raises."""
+    R = calibration.array(key, (3, 3))
+    orthonormal = np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOLERANCE)
+    if not orthonormal or np.linalg.det(R) < 0.0:
+        raise calibration.error(key, "is not a rotation matrix")
+    return R
+
+
+def _rectification(calibration: Calibration) -> StereoRectification:
+    """The `StereoRectification` of a raw rig described by ``calibration``."""
+    return rectify_stereo(
+        calibration.array("left.K", (3, 3)),
+        _distortion(calibration, "left.distortion"),
+        calibration.array("right.K", (3, 3)),
+        _distortion(calibration, "right.distortion"),
+        make_pose(_rotation(calibration, "R"), calibration.array("t", (3,))),
+        _image_size(calibration),
+        source=calibration.path,
+    )
+
+
+def _groundtruth(path: Path, timestamps: np.ndarray, T_left_rect: np.ndarray) -> Trajectory | None:
+    """``T_w_c`` of the rectified left camera at the frame times, first = identity, or None.
+
+    ``T_left_rect`` (4, 4) maps the rectified left camera frame into the raw left one.
+    """
+    if not path.exists():
+        return None
+    left = read_tum(path)
+    at_frames = groundtruth_at_frames(left, timestamps, GROUNDTRUTH_MAX_OFFSET, path)
+    return Trajectory(at_frames.timestamps, at_frames.poses @ T_left_rect).relative_to_first()

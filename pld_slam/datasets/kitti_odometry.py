@@ -1,0 +1,94 @@
+"""KITTI odometry layout: ``.../sequences/NN/{image_0/, image_1/, calib.txt, times.txt}``.
+
+- Images: ``image_0/*.png`` (left) and ``image_1/*.png`` (right), already rectified,
+  paired in file-name order.
+- Camera: ``P0`` and ``P1`` of ``calib.txt``; fx, fy, cx, cy from ``P0`` and
+  ``baseline = (P0[0, 3] - P1[0, 3]) / fx``. ``calib.txt`` has no image size; we read
+  it from the header of the first left PNG (24 bytes), so opening decodes no image.
+- Times: ``times.txt``, one time [s] per line and per frame. It is required: every KITTI
+  download has it, and a guessed frame rate would silently distort time-based metrics.
+- Ground truth (optional): the official ``.../poses/NN.txt`` two folders up, else
+  ``poses.txt`` inside the sequence folder (how the project's synthetic generator writes
+  one sequence), read with `pld_slam.io.trajectory.read_kitti` (a malformed row raises
+  its `TrajectoryError` naming ``file:line``). Row i is frame i. More rows than frames is
+  open: we keep the first N, so that the official poses still serve a truncated image
+  folder (the shared extract holds the first 51 frames). Fewer rows give ground truth for
+  the first frames only. The first ground-truth pose is moved to identity.
+- Dynamic masks (optional, synthetic sequences): ``dynamic_masks/*.png``, one per frame
+  in file-name order; a different count raises, as a half-written mask folder would
+  silently corrupt the dynamic-feature metrics.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
+from pld_slam.datasets.files import image_files, png_size, read_times
+from pld_slam.errors import DatasetError
+from pld_slam.io.trajectory import read_kitti
+from pld_slam.trajectory import Trajectory
+
+LAYOUT = "kitti_odometry"
+EXPECTED = "KITTI odometry (image_0/, image_1/, calib.txt, times.txt)"
+
+
+def matches(folder: Path) -> bool:
+    """Whether ``folder`` looks like a KITTI odometry sequence (it has ``image_0/``)."""
+    return (folder / "image_0").is_dir()
+
+
+def load(folder: Path) -> StereoSequence:
+    """Open the KITTI odometry sequence in ``folder`` (see the module docstring)."""
+    folder = folder.resolve()
+    left_paths = image_files(folder / "image_0", (".png",))
+    right_paths = image_files(folder / "image_1", (".png",))
+    timestamps = read_times(folder / "times.txt", len(left_paths))
+    calibration = read_kitti_calibration(folder / "calib.txt")
+    camera = stereo_camera_from_projections(
+        calibration.array("P0", (3, 4)),
+        calibration.array("P1", (3, 4)),
+        *png_size(left_paths[0]),
+        source=calibration.path,
+    )
+    return StereoSequence(
+        name=f"kitti_{folder.name}",
+        layout=LAYOUT,
+        root=folder,
+        camera=camera,
+        timestamps=timestamps,
+        left_paths=left_paths,
+        right_paths=right_paths,
+        groundtruth=_groundtruth(folder, timestamps),
+        dynamic_mask_paths=_dynamic_mask_paths(folder, len(left_paths)),
+    )
+
+
+def _groundtruth_file(folder: Path) -> Path | None:
+    """The official ``../../poses/NN.txt``, else ``poses.txt`` in the sequence, else None."""
+    official = folder.parent.parent / "poses" / f"{folder.name}.txt"
+    for candidate in (official, folder / "poses.txt"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _groundtruth(folder: Path, timestamps: np.ndarray) -> Trajectory | None:
+    """``T_w_c`` of the left camera at the first min(rows, frames) frames, first = identity."""
+    path = _groundtruth_file(folder)
+    if path is None:
+        return None
+    poses = read_kitti(path).poses[: len(timestamps)]
+    return Trajectory(timestamps[: len(poses)], poses).relative_to_first()
+
+
+def _dynamic_mask_paths(folder: Path, n_frames: int) -> list[Path] | None:
+    """``dynamic_masks/*.png`` sorted by name, one per frame, or None without the folder."""
+    mask_folder = folder / "dynamic_masks"
+    if not mask_folder.is_dir():
+        return None
+    paths = sorted(mask_folder.glob("*.png"))
+    if len(paths) != n_frames:
+        raise DatasetError(f"{mask_folder}: {len(paths)} masks for {n_frames} frames")
+    return paths

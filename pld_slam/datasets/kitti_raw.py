@@ -1,0 +1,164 @@
+"""KITTI raw layout: ``.../DATE/DATE_drive_NNNN_sync/{image_00/, image_01/, oxts/}``.
+
+- Images: ``image_00/data/*.png`` (left grey) and ``image_01/data/*.png`` (right grey),
+  synced and rectified, paired in file-name order.
+- Times: ``image_00/timestamps.txt``, datetimes such as ``2011-09-26 13:04:32.351950336``,
+  read as UTC seconds since the Unix epoch; the whole seconds and the nanoseconds are
+  added once in float64, which keeps them to float64's resolution (about 0.2 us).
+- Camera: ``P_rect_00`` and ``P_rect_01`` of ``calib_cam_to_cam.txt`` one folder up
+  (``S_rect_00`` gives the image size).
+- Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame, turned into poses
+  as the KITTI raw devkit's ``convertOxtsToPose`` does (Mercator projection scaled by the
+  first latitude, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), then moved from the IMU to the
+  rectified left camera with ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu``
+  (``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``):
+  ``T_w_c_i = T_c_imu inv(T_oxts_0) T_oxts_i inv(T_c_imu)``, so the first is identity.
+  Which time a packet belongs to is open (``oxts/timestamps.txt`` differs from the image
+  times by a few ms); we give pose i the time of image i, because the ``_sync`` product
+  already pairs packet i with frame i.
+"""
+
+from pathlib import Path
+
+import numpy as np
+
+from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.calibration import (
+    Calibration,
+    read_kitti_calibration,
+    stereo_camera_from_projections,
+)
+from pld_slam.datasets.files import image_files, read_times
+from pld_slam.errors import DatasetError
+from pld_slam.geometry.se3 import inverse, make_pose
+from pld_slam.trajectory import Trajectory
+
+LAYOUT = "kitti_raw"
+EXPECTED = (
+    "KITTI raw (DATE_drive_NNNN_sync/ with image_00/data/, image_01/data/, "
+    "image_00/timestamps.txt, and calib_cam_to_cam.txt one folder up)"
+)
+
+EARTH_RADIUS = 6378137.0
+"""Earth radius [m] of the devkit's Mercator projection."""
+
+_OXTS_POSE_FIELDS = 6
+"""lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad]: the first fields of a packet."""
+
+
+def matches(folder: Path) -> bool:
+    """Whether ``folder`` looks like a KITTI raw drive (it has ``image_00/``)."""
+    return (folder / "image_00").is_dir()
+
+
+def load(folder: Path) -> StereoSequence:
+    """Open the KITTI raw drive in ``folder`` (see the module docstring)."""
+    folder = folder.resolve()
+    left_paths = image_files(folder / "image_00" / "data", (".png",))
+    right_paths = image_files(folder / "image_01" / "data", (".png",))
+    timestamps = read_times(
+        folder / "image_00" / "timestamps.txt", len(left_paths), parse_line=datetime_seconds
+    )
+    cam_to_cam = read_kitti_calibration(folder.parent / "calib_cam_to_cam.txt")
+    width, height = cam_to_cam.array("S_rect_00", (2,)).astype(int)
+    camera = stereo_camera_from_projections(
+        cam_to_cam.array("P_rect_00", (3, 4)),
+        cam_to_cam.array("P_rect_01", (3, 4)),
+        width,
+        height,
+        source=cam_to_cam.path,
+    )
+    return StereoSequence(
+        name=f"kitti_raw_{folder.name.removesuffix('_sync')}",
+        layout=LAYOUT,
+        root=folder,
+        camera=camera,
+        timestamps=timestamps,
+        left_paths=left_paths,
+        right_paths=right_paths,
+        groundtruth=_groundtruth(folder, timestamps, cam_to_cam),
+    )
+
+
+def datetime_seconds(text: str) -> float:
+    """UTC seconds since the Unix epoch of ``YYYY-MM-DD hh:mm:ss.fffffffff``; ValueError if bad."""
+    nanoseconds = int(np.datetime64(text.replace(" ", "T"), "ns").astype(np.int64))
+    whole, fraction = divmod(nanoseconds, 1_000_000_000)
+    return whole + fraction * 1e-9
+
+
+def _groundtruth(
+    folder: Path, timestamps: np.ndarray, cam_to_cam: Calibration
+) -> Trajectory | None:
+    """``T_w_c`` of the rectified left camera from OXTS, first = identity; None without OXTS."""
+    oxts_folder = folder / "oxts" / "data"
+    if not oxts_folder.is_dir():
+        return None
+    packet_paths = sorted(oxts_folder.glob("*.txt"))
+    if len(packet_paths) != len(timestamps):
+        raise DatasetError(
+            f"{oxts_folder}: {len(packet_paths)} OXTS packets for {len(timestamps)} frames"
+        )
+    T_w_imu = oxts_poses(np.array([read_oxts_pose_fields(path) for path in packet_paths]))
+    T_imu0_imu = inverse(T_w_imu[0]) @ T_w_imu
+    T_c_imu = cam0_rect_from_imu(folder.parent, cam_to_cam)
+    # The exact matrix inverse, not se3.inverse: the calibration rotations are printed to
+    # 7 digits, ~1e-7 off SO(3), and a transpose would leave the first pose off identity.
+    T_w_c = T_c_imu @ T_imu0_imu @ np.linalg.inv(T_c_imu)
+    return Trajectory(timestamps, T_w_c)
+
+
+def read_oxts_pose_fields(path: Path) -> np.ndarray:
+    """(6,) lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad] of one OXTS packet file."""
+    fields = path.read_text().split()[:_OXTS_POSE_FIELDS]
+    try:
+        values = np.array(fields, dtype=np.float64)
+    except ValueError:
+        raise DatasetError(f"{path}: OXTS packet is not numbers") from None
+    if values.size != _OXTS_POSE_FIELDS:
+        raise DatasetError(f"{path}: OXTS packet has {values.size} fields, expected at least 6")
+    return values
+
+
+def oxts_poses(fields: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) ``T_w_imu`` of OXTS packets (N, 6), as the devkit's ``convertOxtsToPose``.
+
+    The world is the devkit's local Mercator frame (x east, y north, z up [m]), scaled by
+    ``cos(lat_0)`` of the first packet; not yet moved to the first pose.
+    """
+    lat, lon, alt, roll, pitch, yaw = fields.T
+    scale = np.cos(np.deg2rad(lat[0]))
+    translations = np.column_stack(
+        [
+            scale * EARTH_RADIUS * np.deg2rad(lon),
+            scale * EARTH_RADIUS * np.log(np.tan(np.deg2rad(90.0 + lat) / 2.0)),
+            alt,
+        ]
+    )
+    return np.array(
+        [
+            make_pose(rotation_zyx(r, p, y), t)
+            for r, p, y, t in zip(roll, pitch, yaw, translations, strict=True)
+        ]
+    )
+
+
+def rotation_zyx(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """(3, 3) ``Rz(yaw) Ry(pitch) Rx(roll)`` [rad]: the OXTS body attitude."""
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    Ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    Rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ Ry @ Rx
+
+
+def cam0_rect_from_imu(calibration_folder: Path, cam_to_cam: Calibration) -> np.ndarray:
+    """(4, 4) ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu`` from the ``calib_*.txt``."""
+    velo_to_cam = read_kitti_calibration(calibration_folder / "calib_velo_to_cam.txt")
+    imu_to_velo = read_kitti_calibration(calibration_folder / "calib_imu_to_velo.txt")
+    T_cam0rect_cam0 = make_pose(cam_to_cam.array("R_rect_00", (3, 3)), np.zeros(3))
+    T_cam0_velo = make_pose(velo_to_cam.array("R", (3, 3)), velo_to_cam.array("T", (3,)))
+    T_velo_imu = make_pose(imu_to_velo.array("R", (3, 3)), imu_to_velo.array("T", (3,)))
+    return T_cam0rect_cam0 @ T_cam0_velo @ T_velo_imu

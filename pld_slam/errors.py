@@ -1,0 +1,22 @@
+"""The one exception family of pld-slam.
+
+Every error a user can cause (a bad folder, a malformed file, an invalid config) is a
+`PldSlamError` whose message is one line naming the file or key and the problem; the CLI
+prints that line and exits with code 2.
+"""
+
+
+class PldSlamError(Exception):
+    """Base of every error pld-slam raises on purpose."""
+
+
+class DatasetError(PldSlamError):
+    """A sequence folder, calibration, image or ground-truth file is missing or malformed."""
+
+
+class TrajectoryError(PldSlamError):
+    """A trajectory file cannot be read, or two trajectories cannot be compared."""
+
+
+class ConfigError(PldSlamError):
+    """A configuration file or override names an unknown key or has a bad value."""

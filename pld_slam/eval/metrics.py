@@ -1,0 +1,280 @@
+"""Accuracy of an estimated trajectory against ground truth, through evo.
+
+The steps, each public:
+
+1. `associate`: pair estimate and ground-truth poses by timestamp
+   (``evo.core.sync.associate_trajectories``) or by row index (KITTI files).
+2. `fit_alignment`: Umeyama alignment of the matched estimate positions onto the ground
+   truth (``evo.core.geometry.umeyama_alignment``): SE(3), Sim(3) or none.
+3. `ate_errors` (evo ``APE``, translation part) and `relative_pose_errors` (evo ``RPE``).
+4. `evaluate`: all of the above plus the KITTI devkit drift (`kitti_devkit`), as an
+   `EvalResult`.
+
+Every metric of `evaluate` is computed on the aligned estimate. RPE and the KITTI drift
+do not change under an SE(3) alignment; under Sim(3) they see the scale-corrected
+estimate, which is what one wants for a monocular run.
+"""
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from evo.core.filters import FilterException
+from evo.core.geometry import GeometryException, umeyama_alignment
+from evo.core.metrics import APE, RPE, PoseRelation, StatisticsType, Unit
+from evo.core.sync import SyncException, associate_trajectories
+from evo.core.trajectory import PoseTrajectory3D
+
+from pld_slam.errors import TrajectoryError
+from pld_slam.eval.kitti_devkit import kitti_relative_errors
+from pld_slam.trajectory import Trajectory
+
+ALIGNMENTS = ("se3", "sim3", "none")
+DELTA_UNITS = {"frames": Unit.frames, "m": Unit.meters}
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Accuracy figures of one estimate; the keys of ``pld-slam eval --json``.
+
+    Attributes
+    ----------
+    ate_rmse_m : float
+        RMSE of the position error after alignment [m].
+    rpe_trans_rmse_m, rpe_rot_rmse_deg : float
+        RMSE of the relative pose error between consecutive matched poses [m], [deg].
+    t_rel_pct, r_rel_deg_per_100m : float or None
+        KITTI devkit drift [%] and [deg / 100 m]; None when the path is under 100 m.
+    n_matched : int
+        Number of matched (estimate, ground truth) pose pairs.
+    """
+
+    ate_rmse_m: float
+    rpe_trans_rmse_m: float
+    rpe_rot_rmse_deg: float
+    t_rel_pct: float | None
+    r_rel_deg_per_100m: float | None
+    n_matched: int
+
+    def as_dict(self) -> dict:
+        """The fields as a JSON-ready dict."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """Similarity taking estimate positions onto the ground truth.
+
+    A position ``p`` becomes ``scale * rotation @ p + translation``; an orientation
+    ``R_w_c`` becomes ``rotation @ R_w_c``. ``rotation`` is (3, 3), ``translation`` (3,).
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    scale: float
+
+    def apply(self, traj: Trajectory) -> Trajectory:
+        """``traj`` (all its poses) moved into the ground-truth world."""
+        poses = traj.poses.copy()
+        poses[:, :3, :3] = self.rotation @ traj.poses[:, :3, :3]
+        poses[:, :3, 3] = self.scale * traj.positions @ self.rotation.T + self.translation
+        return Trajectory(traj.timestamps, poses)
+
+
+IDENTITY = Alignment(rotation=np.eye(3), translation=np.zeros(3), scale=1.0)
+
+
+def _to_evo(traj: Trajectory) -> PoseTrajectory3D:
+    return PoseTrajectory3D(poses_se3=list(traj.poses), timestamps=traj.timestamps)
+
+
+def _from_evo(traj: PoseTrajectory3D) -> Trajectory:
+    return Trajectory(traj.timestamps, np.array(traj.poses_se3))
+
+
+def _associate_by_index(
+    groundtruth: Trajectory, estimate: Trajectory
+) -> tuple[Trajectory, Trajectory]:
+    if len(estimate) > len(groundtruth):
+        raise TrajectoryError(
+            f"the estimate has {len(estimate)} poses but the ground truth only "
+            f"{len(groundtruth)}; poses matched by index need an estimate no longer "
+            "than the ground truth"
+        )
+    return groundtruth.head(len(estimate)), estimate
+
+
+def _associate_by_time(
+    groundtruth: Trajectory, estimate: Trajectory, max_diff: float
+) -> tuple[Trajectory, Trajectory]:
+    if len(groundtruth) == 0 or len(estimate) == 0:
+        raise TrajectoryError("cannot associate an empty trajectory")
+    try:
+        gt, est = associate_trajectories(
+            _to_evo(groundtruth), _to_evo(estimate), max_diff=max_diff
+        )
+    except SyncException as exc:
+        raise TrajectoryError(f"estimate and ground truth: {exc}") from None
+    return _from_evo(gt), _from_evo(est)
+
+
+def associate(
+    groundtruth: Trajectory, estimate: Trajectory, by_index: bool = False, max_diff: float = 0.01
+) -> tuple[Trajectory, Trajectory]:
+    """Matched ground-truth and estimate poses, equal in number and in order.
+
+    Parameters
+    ----------
+    groundtruth, estimate : Trajectory
+    by_index : bool
+        Match row i with row i (KITTI files carry no timestamps). An estimate shorter
+        than the ground truth (a run stopped early) is matched with the first rows;
+        a longer one raises `TrajectoryError`.
+    max_diff : float
+        Largest time difference of a matched pair [s] when matching by timestamp.
+    """
+    if by_index:
+        return _associate_by_index(groundtruth, estimate)
+    return _associate_by_time(groundtruth, estimate, max_diff)
+
+
+def _check_alignment_name(align: str) -> None:
+    if align not in ALIGNMENTS:
+        raise TrajectoryError(f"unknown alignment {align!r}; expected one of {ALIGNMENTS}")
+
+
+def fit_alignment(groundtruth: Trajectory, estimate: Trajectory, align: str = "se3") -> Alignment:
+    """Umeyama alignment (evo) of matched estimate positions onto ground-truth positions.
+
+    ``groundtruth`` and ``estimate`` are matched pose by pose (see `associate`); ``align``
+    is ``se3`` (rotation and translation), ``sim3`` (also scale) or ``none``.
+    """
+    _check_alignment_name(align)
+    if align == "none":
+        return IDENTITY
+    if len(estimate) < 3:
+        raise TrajectoryError(
+            f"only {len(estimate)} matched poses; {align} alignment needs 3 or more"
+        )
+    try:
+        rotation, translation, scale = umeyama_alignment(
+            estimate.positions.T, groundtruth.positions.T, with_scale=align == "sim3"
+        )
+    except GeometryException as exc:
+        raise TrajectoryError(
+            f"cannot align the estimate to the ground truth ({exc}); "
+            "are all positions on one line?"
+        ) from None
+    return Alignment(rotation, translation, float(scale))
+
+
+def _matched_and_aligned(
+    groundtruth: Trajectory, estimate: Trajectory, align: str, by_index: bool, max_diff: float
+) -> tuple[Trajectory, Trajectory]:
+    """Matched ground truth and the matched estimate aligned onto it."""
+    _check_alignment_name(align)
+    gt, est = associate(groundtruth, estimate, by_index, max_diff)
+    if len(gt) < 2:
+        raise TrajectoryError(
+            f"only {len(gt)} estimate pose(s) matched the ground truth; need at least 2 "
+            f"(check the timestamps, max_diff = {max_diff} s, or match by index)"
+        )
+    return gt, fit_alignment(gt, est, align).apply(est)
+
+
+def _absolute_translation_error(groundtruth: Trajectory, estimate: Trajectory) -> APE:
+    ape = APE(PoseRelation.translation_part)
+    ape.process_data((_to_evo(groundtruth), _to_evo(estimate)))
+    return ape
+
+
+def ate_errors(
+    groundtruth: Trajectory,
+    estimate: Trajectory,
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position error of each matched estimate pose after alignment (evo APE).
+
+    Returns
+    -------
+    timestamps : np.ndarray
+        (M,) estimate times of the matched poses [s].
+    errors : np.ndarray
+        (M,) distance between aligned estimate and ground-truth positions [m].
+    """
+    gt, est = _matched_and_aligned(groundtruth, estimate, align, by_index, max_diff)
+    return est.timestamps, _absolute_translation_error(gt, est).error
+
+
+def _rpe_rmse(
+    groundtruth: Trajectory, estimate: Trajectory, relation: PoseRelation, delta, unit: Unit
+) -> float:
+    rpe = RPE(relation, delta=delta, delta_unit=unit, pairs_from_reference=True)
+    rpe.process_data((_to_evo(groundtruth), _to_evo(estimate)))
+    return float(rpe.get_statistic(StatisticsType.rmse))
+
+
+def relative_pose_errors(
+    groundtruth: Trajectory, estimate: Trajectory, delta: float = 1, delta_unit: str = "frames"
+) -> tuple[float, float]:
+    """RMSE of evo's RPE over consecutive pose pairs ``delta`` apart.
+
+    Parameters
+    ----------
+    groundtruth, estimate : Trajectory
+        Matched pose by pose (see `associate`).
+    delta : float
+        Pair spacing: frames (an integer) or metres of ground-truth path.
+    delta_unit : str
+        ``frames`` or ``m``.
+
+    Returns
+    -------
+    translation_rmse_m, rotation_rmse_deg : float
+    """
+    if delta_unit not in DELTA_UNITS:
+        raise TrajectoryError(f"unknown RPE delta unit {delta_unit!r}; expected frames or m")
+    unit = DELTA_UNITS[delta_unit]
+    try:
+        return (
+            _rpe_rmse(groundtruth, estimate, PoseRelation.translation_part, delta, unit),
+            _rpe_rmse(groundtruth, estimate, PoseRelation.rotation_angle_deg, delta, unit),
+        )
+    except FilterException:
+        raise TrajectoryError(
+            f"no pose pairs {delta} {delta_unit} apart among {len(groundtruth)} poses "
+            f"({groundtruth.path_length():.1f} m of path)"
+        ) from None
+
+
+def evaluate(
+    groundtruth: Trajectory,
+    estimate: Trajectory,
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> EvalResult:
+    """ATE, per-frame RPE and KITTI drift of ``estimate`` against ``groundtruth``.
+
+    Parameters
+    ----------
+    groundtruth, estimate : Trajectory
+        ``T_w_c`` poses; their world frames may differ (the alignment removes that).
+    align : str
+        ``se3`` (default), ``sim3`` or ``none``; applied before every metric.
+    by_index, max_diff
+        How poses are matched; see `associate`.
+    """
+    gt, est = _matched_and_aligned(groundtruth, estimate, align, by_index, max_diff)
+    rpe_trans, rpe_rot = relative_pose_errors(gt, est)
+    t_rel, r_rel = kitti_relative_errors(gt.poses, est.poses)
+    ate = _absolute_translation_error(gt, est).get_statistic(StatisticsType.rmse)
+    return EvalResult(
+        ate_rmse_m=float(ate),
+        rpe_trans_rmse_m=rpe_trans,
+        rpe_rot_rmse_deg=rpe_rot,
+        t_rel_pct=t_rel,
+        r_rel_deg_per_100m=r_rel,
+        n_matched=len(gt),
+    )

@@ -1,0 +1,56 @@
+"""The rectified stereo camera: intrinsics shared by both images and a horizontal baseline.
+
+Frames: the left camera ``c`` has x right, y down, z forward; the right camera sits at
+``(+baseline, 0, 0)`` in it with the same orientation. Pixels are ``(u, v)`` =
+(column, row). A point at depth z has disparity ``d = u_left - u_right = fx * b / z``.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class StereoCamera:
+    """A rectified stereo pair: pinhole intrinsics [px], baseline [m], image size [px]."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float
+    width: int
+    height: int
+
+    @property
+    def K(self) -> np.ndarray:
+        """The 3x3 intrinsic matrix of both rectified images."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def bf(self) -> float:
+        """Baseline times focal length [m px]: disparity = bf / depth."""
+        return self.baseline * self.fx
+
+    def project(self, p_c: np.ndarray) -> np.ndarray:
+        """Left-image pixels (N, 2) of points (N, 3) in the left camera frame."""
+        z = p_c[:, 2]
+        return np.column_stack(
+            [self.fx * p_c[:, 0] / z + self.cx, self.fy * p_c[:, 1] / z + self.cy]
+        )
+
+    def project_stereo(self, p_c: np.ndarray) -> np.ndarray:
+        """Stereo pixels ``(u_left, v, u_right)`` (N, 3) of points (N, 3) in the left camera."""
+        uv = self.project(p_c)
+        u_right = uv[:, 0] - self.bf / p_c[:, 2]
+        return np.column_stack([uv, u_right])
+
+    def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Points (N, 3) in the left camera frame from left pixels (N, 2) and depths (N,)."""
+        x = (uv[:, 0] - self.cx) / self.fx * depth
+        y = (uv[:, 1] - self.cy) / self.fy * depth
+        return np.column_stack([x, y, depth])
+
+    def triangulate(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+        """Points (N, 3) in the left camera frame from left pixels (N, 2) and disparities (N,) [px]."""
+        return self.backproject(uv_left, self.bf / disparity)

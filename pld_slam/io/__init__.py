@@ -1,0 +1,1 @@
+"""Files in and out: trajectories in the TUM, KITTI and EuRoC formats (`trajectory`)."""

@@ -1,0 +1,635 @@
+"""Dataset loaders: the real extracts, small generated folders of each layout, bad input.
+
+Real-data tests take the ``data_dir`` fixture of ``conftest.py`` and skip, naming the
+extract, when it is missing. Generated folders hold a few 32x24 images written here.
+"""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from conftest import require
+
+from pld_slam.datasets import open_sequence
+from pld_slam.datasets.kitti_raw import EARTH_RADIUS
+from pld_slam.errors import DatasetError, TrajectoryError
+from pld_slam.geometry.se3 import make_pose, rotation_angle
+
+WIDTH, HEIGHT = 32, 24
+FX, FY, CX, CY = 50.0, 52.0, 16.0, 12.0
+BASELINE = 0.25
+
+# ---------------------------------------------------------------- helpers: generated folders
+
+
+def write_images(folder: Path, names: list[str], seed: int = 0, size=(WIDTH, HEIGHT)) -> None:
+    """Random grey images ``folder/name`` of ``size`` = (width, height)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    for name in names:
+        cv2.imwrite(str(folder / name), rng.integers(0, 256, (size[1], size[0]), dtype=np.uint8))
+
+
+def write_lines(path: Path, lines: list[str]) -> Path:
+    """Write ``lines`` as the text file ``path`` (parents created)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def numbers(values) -> str:
+    """``values`` written as KITTI calibration numbers, space-separated."""
+    return " ".join(f"{v:.12e}" for v in np.ravel(values))
+
+
+def projection(baseline: float = 0.0) -> np.ndarray:
+    """(3, 4) projection matrix of a rectified camera ``baseline`` to the right of the left one."""
+    K = np.array([[FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]])
+    return K @ np.hstack([np.eye(3), [[-baseline], [0.0], [0.0]]])
+
+
+def translation(x: float, y: float = 0.0, z: float = 0.0) -> np.ndarray:
+    """(4, 4) pure translation [m]."""
+    return make_pose(np.eye(3), np.array([x, y, z]))
+
+
+def kitti_pose_rows(poses: np.ndarray) -> list[str]:
+    """KITTI pose-file rows of poses (N, 4, 4)."""
+    return [numbers(T[:3]) for T in poses]
+
+
+def make_kitti_odometry(root: Path, n: int = 3) -> Path:
+    """``root/sequences/00`` with n frames, calib.txt, times.txt and no ground truth."""
+    folder = root / "sequences" / "00"
+    names = [f"{i:06d}.png" for i in range(n)]
+    write_images(folder / "image_0", names, seed=0)
+    write_images(folder / "image_1", names, seed=1)
+    write_lines(folder / "calib.txt", [f"P0: {numbers(projection())}", f"P1: {numbers(projection(BASELINE))}"])
+    write_lines(folder / "times.txt", [f"{0.1 * i:.6e}" for i in range(n)])
+    return folder
+
+
+def make_kitti_raw(root: Path, n: int = 3, metres_east_per_frame: float = 1.0) -> Path:
+    """A raw drive with n frames whose OXTS unit drives east (yaw 0) at a constant step.
+
+    The calibration puts the camera looking along the IMU's x axis (forward), so the
+    camera moves along its own z axis.
+    """
+    date = root / "2011_01_01"
+    folder = date / "2011_01_01_drive_0001_sync"
+    names = [f"{i:010d}.png" for i in range(n)]
+    write_images(folder / "image_00" / "data", names, seed=0)
+    write_images(folder / "image_01" / "data", names, seed=1)
+    write_lines(
+        folder / "image_00" / "timestamps.txt",
+        [f"2011-01-01 00:00:0{i}.100000001" for i in range(n)],
+    )
+    write_lines(
+        date / "calib_cam_to_cam.txt",
+        [
+            "calib_time: 01-Jan-2011 00:00:00",
+            f"S_rect_00: {WIDTH} {HEIGHT}",
+            f"R_rect_00: {numbers(np.eye(3))}",
+            f"P_rect_00: {numbers(projection())}",
+            f"P_rect_01: {numbers(projection(BASELINE))}",
+        ],
+    )
+    camera_from_velodyne = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    write_lines(date / "calib_velo_to_cam.txt", [f"R: {numbers(camera_from_velodyne)}", "T: 0.1 -0.2 0.3"])
+    write_lines(date / "calib_imu_to_velo.txt", [f"R: {numbers(np.eye(3))}", "T: 0.5 0 0.2"])
+    lat0, lon0 = 49.0, 8.4
+    degrees_per_metre = 180.0 / (np.cos(np.deg2rad(lat0)) * EARTH_RADIUS * np.pi)
+    for i in range(n):
+        packet = [lat0, lon0 + i * metres_east_per_frame * degrees_per_metre, 110.0, 0, 0, 0] + [0] * 24
+        write_lines(folder / "oxts" / "data" / f"{i:010d}.txt", [" ".join(f"{v:.15g}" for v in packet)])
+    return folder
+
+
+B_FROM_CAM0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+"""Rotation of the generated EuRoC camera in the body: it looks along the body's x axis."""
+
+
+def sensor_yaml(T_B_S: np.ndarray, distortion_model: str = "radial-tangential") -> str:
+    """An EuRoC ``sensor.yaml`` (with OpenCV's ``%YAML:1.0`` line) of a camera at ``T_B_S``."""
+    return (
+        "%YAML:1.0\n"
+        "sensor_type: camera\n"
+        f"T_BS:\n  cols: 4\n  rows: 4\n  data: [{', '.join(f'{v:.12g}' for v in T_B_S.ravel())}]\n"
+        f"resolution: [{WIDTH}, {HEIGHT}]\n"
+        "camera_model: pinhole\n"
+        f"intrinsics: [{FX}, {FY}, {CX}, {CY}]\n"
+        f"distortion_model: {distortion_model}\n"
+        "distortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n"
+    )
+
+
+def make_euroc(root: Path, n: int = 3, start_ns: int = 1_403_715_273_262_142_976) -> Path:
+    """``root/MH_00/mav0`` with n frames 50 ms apart and body ground truth at the frame times.
+
+    The body moves 0.1 m per frame along its x axis, which is the left camera's z axis.
+    """
+    mav0 = root / "MH_00" / "mav0"
+    stamps = [start_ns + i * 50_000_000 for i in range(n)]
+    T_B_c0 = make_pose(B_FROM_CAM0, np.array([0.01, -0.02, 0.03]))
+    T_B_c1 = T_B_c0 @ translation(BASELINE)
+    for camera, T_B_S, seed in (("cam0", T_B_c0, 0), ("cam1", T_B_c1, 1)):
+        write_images(mav0 / camera / "data", [f"{s}.png" for s in stamps], seed=seed)
+        write_lines(mav0 / camera / "data.csv", ["#timestamp [ns],filename"] + [f"{s},{s}.png" for s in stamps])
+        (mav0 / camera / "sensor.yaml").write_text(sensor_yaml(T_B_S))
+    write_lines(
+        mav0 / "state_groundtruth_estimate0" / "data.csv",
+        ["#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z []"]
+        + [f"{s},{0.1 * i + 2.0},1.0,0.5,1.0,0.0,0.0,0.0" for i, s in enumerate(stamps)],
+    )
+    return mav0.parent
+
+
+def rectified_calibration() -> dict:
+    """A generic ``calib.yaml`` of an already rectified WIDTH x HEIGHT pair."""
+    K = [[FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]]
+    return {"image_size": [WIDTH, HEIGHT], "left": {"K": K}, "t": [-BASELINE, 0.0, 0.0], "rectified": True}
+
+
+RAW_WIDTH, RAW_HEIGHT = 320, 240
+RAW_RIG = {  # a distorted, slightly rotated rig: rows differ by several pixels before rectifying
+    "image_size": [RAW_WIDTH, RAW_HEIGHT],
+    "left": {"K": [[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]],
+             "distortion": [-0.2, 0.05, 0.001, -0.001]},
+    "right": {"K": [[305.0, 0.0, 158.0], [0.0, 302.0, 126.0], [0.0, 0.0, 1.0]],
+              "distortion": [-0.18, 0.04, -0.001, 0.0005, 0.0]},
+    "R": cv2.Rodrigues(np.array([0.03, -0.04, 0.05]))[0].tolist(),
+    "t": [-0.12, 0.003, 0.002],
+}
+
+
+def make_generic(root: Path, calibration: dict, n: int = 3, suffix: str = ".png", size=(WIDTH, HEIGHT)) -> Path:
+    """``root/my_rig`` with n random image pairs of ``size`` and ``calibration`` as calib.yaml."""
+    folder = root / "my_rig"
+    names = [f"{i:04d}{suffix}" for i in range(n)]
+    write_images(folder / "left", names, seed=0, size=size)
+    write_images(folder / "right", names, seed=1, size=size)
+    (folder / "calib.yaml").write_text(yaml.safe_dump(calibration))
+    return folder
+
+
+def remove(relative: str):
+    """A folder change: delete the file ``relative``."""
+    return lambda folder: (folder / relative).unlink()
+
+
+def rewrite(relative: str, *lines: str):
+    """A folder change: replace the file ``relative`` by ``lines``."""
+    return lambda folder: write_lines(folder / relative, list(lines))
+
+
+def empty(relative: str):
+    """A folder change: delete every file of the folder ``relative``."""
+    return lambda folder: [path.unlink() for path in (folder / relative).iterdir()]
+
+
+def open_error(path: Path, error=DatasetError) -> str:
+    """The one-line message of the error raised by opening ``path``."""
+    with pytest.raises(error) as caught:
+        open_sequence(path)
+    message = str(caught.value)
+    assert "\n" not in message
+    return message
+
+
+# ---------------------------------------------------------------- real extracts
+
+
+def test_kitti_odometry_extract(data_dir):
+    sequence = open_sequence(require(data_dir / "kitti_odometry" / "sequences" / "06"))
+    assert (sequence.name, sequence.layout, len(sequence)) == ("kitti_06", "kitti_odometry", 51)
+    assert sequence.camera.fx == pytest.approx(707.0912)
+    assert sequence.camera.baseline == pytest.approx(0.537, abs=1e-3)
+    # Sequence 06 is 1226x370 (sequences 00-02 are 1241x376).
+    frame = sequence[50]
+    assert frame.left.shape == frame.right.shape == (370, 1226)
+    assert (sequence.camera.width, sequence.camera.height) == (1226, 370)
+    assert len(sequence.groundtruth) == 51
+    assert np.allclose(sequence.groundtruth.poses[0], np.eye(4))
+    assert np.array_equal(sequence.groundtruth.timestamps, sequence.timestamps)
+    assert sequence.rectifier is None and sequence.dynamic_mask_paths is None
+
+
+def test_kitti_raw_extract_oxts_path(data_dir):
+    drive = data_dir / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0005_sync"
+    sequence = open_sequence(require(drive))
+    assert (sequence.name, sequence.layout) == ("kitti_raw_2011_09_26_drive_0005", "kitti_raw")
+    assert len(sequence) == 45
+    assert sequence.camera.baseline == pytest.approx(0.537, abs=1e-3)
+    assert sequence[0].left.shape == (375, 1242)
+    # 2011-09-26 13:04:32.351950336 UTC
+    assert sequence.timestamps[0] == pytest.approx(1317042272.351950336, abs=1e-6)
+    groundtruth = sequence.groundtruth
+    assert len(groundtruth) == 45
+    assert np.allclose(groundtruth.poses[0], np.eye(4), atol=1e-12)
+    assert groundtruth.path_length() == pytest.approx(15.2, abs=0.1)
+    assert np.allclose(groundtruth.positions[-1], [-4.29, -0.12, 14.28], atol=0.03)
+
+
+def median_row_offset(left: np.ndarray, right: np.ndarray) -> float:
+    """Median |v_left - v_right| [px] of cross-checked ORB matches between two images."""
+    orb = cv2.ORB_create(1000)
+    keys_left, descriptors_left = orb.detectAndCompute(left, None)
+    keys_right, descriptors_right = orb.detectAndCompute(right, None)
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(descriptors_left, descriptors_right)
+    rows = [keys_left[m.queryIdx].pt[1] - keys_right[m.trainIdx].pt[1] for m in matches]
+    return float(np.median(np.abs(rows)))
+
+
+def test_euroc_static_extract_is_rectified_and_still(data_dir):
+    sequence = open_sequence(require(data_dir / "euroc" / "V1_01_easy_static"))
+    assert (sequence.name, sequence.layout, len(sequence)) == ("euroc_V1_01_easy_static", "euroc", 40)
+    assert sequence.camera.baseline == pytest.approx(0.110, abs=2e-3)
+    frame = sequence[0]
+    raw = cv2.imread(str(sequence.left_paths[0]), cv2.IMREAD_GRAYSCALE)
+    assert frame.left.shape == frame.right.shape == raw.shape == (480, 752)
+    assert median_row_offset(frame.left, frame.right) < 0.5
+    groundtruth = sequence.groundtruth
+    assert len(groundtruth) == 40
+    assert np.allclose(groundtruth.poses[0], np.eye(4))
+    assert np.abs(groundtruth.positions).max() < 0.01
+    assert rotation_angle(groundtruth.poses[:, :3, :3]).max() < 0.01
+    assert np.diff(sequence.timestamps) == pytest.approx(0.05, abs=1e-6)
+
+
+def test_euroc_flight_extract_opens_from_mav0(data_dir):
+    sequence = open_sequence(require(data_dir / "euroc" / "V1_01_easy_flight" / "mav0"))
+    assert (sequence.name, len(sequence), len(sequence.groundtruth)) == ("euroc_V1_01_easy_flight", 10, 10)
+    assert sequence.timestamps[0] == pytest.approx(1403715297.312143104, abs=1e-6)
+
+
+# ---------------------------------------------------------------- layout detection
+
+
+def test_each_generated_layout_is_detected(tmp_path):
+    folders = {
+        "kitti_odometry": make_kitti_odometry(tmp_path / "a"),
+        "kitti_raw": make_kitti_raw(tmp_path / "b"),
+        "euroc": make_euroc(tmp_path / "c"),
+        "generic": make_generic(tmp_path / "d", rectified_calibration()),
+    }
+    for layout, folder in folders.items():
+        assert open_sequence(folder).layout == layout
+    assert open_sequence(str(folders["euroc"] / "mav0")).layout == "euroc"
+
+
+def test_missing_or_empty_folder_raises(tmp_path):
+    assert "no such folder" in open_error(tmp_path / "nowhere")
+    (tmp_path / "file.txt").write_text("x")
+    assert "not a folder" in open_error(tmp_path / "file.txt")
+    (tmp_path / "empty").mkdir()
+    assert "empty" in open_error(tmp_path / "empty")
+
+
+def test_unknown_layout_lists_the_layouts_expected(tmp_path):
+    write_images(tmp_path / "pictures", ["a.png"])
+    message = open_error(tmp_path)
+    assert str(tmp_path) in message
+    for layout in ("KITTI odometry", "KITTI raw", "EuRoC", "generic"):
+        assert layout in message
+
+
+# ---------------------------------------------------------------- KITTI odometry, generated
+
+
+def test_kitti_odometry_generated_sequence(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    poses = np.array([translation(5.0 + i, 1.0, 2.0) for i in range(3)])
+    write_lines(folder / "poses.txt", kitti_pose_rows(poses))
+    write_images(folder / "dynamic_masks", [f"{i:06d}.png" for i in range(3)])
+    sequence = open_sequence(folder)
+    camera = sequence.camera
+    assert (camera.fx, camera.fy, camera.cx, camera.cy) == (FX, FY, CX, CY)
+    assert camera.baseline == pytest.approx(BASELINE)
+    assert (camera.width, camera.height) == (WIDTH, HEIGHT)
+    assert sequence.name == "kitti_00"
+    assert np.allclose(sequence.timestamps, [0.0, 0.1, 0.2])
+    assert np.allclose(sequence.groundtruth.positions, [[0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    assert sequence.dynamic_mask(2).shape == (HEIGHT, WIDTH)
+    assert sequence[1].left.shape == (HEIGHT, WIDTH)
+
+
+def test_kitti_official_poses_win_and_longer_files_are_cut(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    write_lines(folder / "poses.txt", kitti_pose_rows(np.array([np.eye(4)] * 3)))
+    official = np.array([translation(0.0, 0.0, 2.0 * i) for i in range(5)])
+    write_lines(tmp_path / "poses" / "00.txt", kitti_pose_rows(official))
+    groundtruth = open_sequence(folder).groundtruth
+    assert len(groundtruth) == 3
+    assert np.allclose(groundtruth.positions[:, 2], [0.0, 2.0, 4.0])
+
+
+def test_kitti_shorter_poses_cover_the_first_frames(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    write_lines(folder / "poses.txt", kitti_pose_rows(np.array([np.eye(4), translation(1.0)])))
+    groundtruth = open_sequence(folder).groundtruth
+    assert np.allclose(groundtruth.timestamps, [0.0, 0.1])
+
+
+@pytest.mark.parametrize(
+    "break_it, expected",
+    [
+        (remove("calib.txt"), "calib.txt: KITTI calibration file not found"),
+        (rewrite("calib.txt", f"P0: {numbers(projection())}"), "calib.txt: missing key 'P1'"),
+        (rewrite("calib.txt", "P0: 1 2 3", "P1: 1 2 3"), "'P0' has 3 numbers, expected 12"),
+        (rewrite("calib.txt", "P0 1 2 3"), "calib.txt:1: expected 'KEY: values'"),
+        (remove("times.txt"), "times.txt: times file not found"),
+        (rewrite("times.txt", "0.0", "0.1"), "times.txt: 2 times for 3 image pairs"),
+        (rewrite("times.txt", "0.0", "zero", "0.2"), "times.txt:2: not a time"),
+        (rewrite("times.txt", "0.0", "0.2", "0.1"), "times.txt:3: times must increase"),
+        (remove("image_1/000002.png"), "3 left images but 2 right images"),
+        (empty("image_1"), "image_1: no .png images"),
+        (lambda f: write_images(f / "dynamic_masks", ["000000.png"]), "dynamic_masks: 1 masks for 3 frames"),
+        (rewrite("image_0/000000.png", "not a png"), "000000.png: not a PNG image"),
+    ],
+)
+def test_kitti_odometry_bad_input(tmp_path, break_it, expected):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    break_it(folder)
+    assert expected in open_error(folder)
+
+
+def test_kitti_malformed_pose_row_names_file_and_line(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    write_lines(folder / "poses.txt", kitti_pose_rows(np.array([np.eye(4)])) + ["1 2 3"])
+    assert "poses.txt:2" in open_error(folder, TrajectoryError)
+
+
+def test_kitti_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    corrupt = folder / "image_1" / "000001.png"
+    corrupt.write_bytes(b"\x89PNG garbage")
+    sequence = open_sequence(folder)
+    assert sequence[0].left.shape == (HEIGHT, WIDTH)
+    with pytest.raises(DatasetError, match="000001.png: cannot read image"):
+        sequence[1]
+
+
+# ---------------------------------------------------------------- KITTI raw, generated
+
+
+def test_kitti_raw_generated_drive_moves_forward_along_camera_z(tmp_path):
+    sequence = open_sequence(make_kitti_raw(tmp_path, n=3, metres_east_per_frame=1.5))
+    assert sequence.name == "kitti_raw_2011_01_01_drive_0001"
+    assert sequence.camera.baseline == pytest.approx(BASELINE)
+    assert (sequence.camera.width, sequence.camera.height) == (WIDTH, HEIGHT)
+    assert sequence.timestamps[1] - sequence.timestamps[0] == pytest.approx(1.0, abs=1e-6)
+    assert sequence.timestamps[0] % 60 == pytest.approx(0.100000001, abs=1e-6)
+    assert np.allclose(sequence.groundtruth.positions, [[0, 0, 0], [0, 0, 1.5], [0, 0, 3.0]], atol=1e-6)
+    assert np.allclose(sequence.groundtruth.poses[:, :3, :3], np.eye(3), atol=1e-9)
+
+
+def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
+    folder = make_kitti_raw(tmp_path)
+    for packet in (folder / "oxts" / "data").iterdir():
+        packet.unlink()
+    (folder / "oxts" / "data").rmdir()
+    assert open_sequence(folder).groundtruth is None
+
+
+@pytest.mark.parametrize(
+    "break_it, expected",
+    [
+        (remove("../calib_cam_to_cam.txt"), "calib_cam_to_cam.txt: KITTI calibration file not found"),
+        (remove("../calib_velo_to_cam.txt"), "calib_velo_to_cam.txt: KITTI calibration file not found"),
+        (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {WIDTH} {HEIGHT}",
+                 f"P_rect_00: {numbers(projection())}"),
+         "calib_cam_to_cam.txt: missing key 'P_rect_01'"),
+        (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1"),
+         "timestamps.txt: 1 times for 3 image pairs"),
+        (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1", "yesterday", "2011-01-01 00:00:02"),
+         "timestamps.txt:2: not a time"),
+        (remove("oxts/data/0000000002.txt"), "oxts/data: 2 OXTS packets for 3 frames"),
+        (rewrite("oxts/data/0000000001.txt", "49.0 8.4"), "0000000001.txt: OXTS packet has 2 fields"),
+        (empty("image_01/data"), "image_01/data: no .png images"),
+    ],
+)
+def test_kitti_raw_bad_input(tmp_path, break_it, expected):
+    folder = make_kitti_raw(tmp_path)
+    break_it(folder)
+    assert expected in open_error(folder)
+
+
+# ---------------------------------------------------------------- EuRoC, generated
+
+
+def test_euroc_generated_sequence_groundtruth_in_the_rectified_left_camera(tmp_path):
+    sequence = open_sequence(make_euroc(tmp_path, n=3))
+    assert sequence.name == "euroc_MH_00"
+    assert sequence.camera.baseline == pytest.approx(BASELINE)
+    assert sequence[2].left.shape == (HEIGHT, WIDTH)
+    assert np.allclose(np.diff(sequence.timestamps), 0.05, atol=1e-6)
+    assert np.allclose(sequence.groundtruth.positions, [[0, 0, 0], [0, 0, 0.1], [0, 0, 0.2]], atol=1e-6)
+
+
+def test_euroc_groundtruth_rows_are_matched_to_frames_within_5_ms(tmp_path):
+    folder = make_euroc(tmp_path, n=3)
+    start = int((folder / "mav0" / "cam0" / "data.csv").read_text().splitlines()[1].split(",")[0])
+    offsets_ns = [3_000_000, 50_000_000 - 4_000_000, 100_000_000 + 20_000_000]
+    write_lines(
+        folder / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+        [f"{start + offset},{i},0,0,1,0,0,0" for i, offset in enumerate(offsets_ns)],
+    )
+    sequence = open_sequence(folder)
+    assert np.array_equal(sequence.groundtruth.timestamps, sequence.timestamps[:2])
+    far = [f"{start + 10**9 * (i + 1)},0,0,0,1,0,0,0" for i in range(2)]
+    write_lines(folder / "mav0" / "state_groundtruth_estimate0" / "data.csv", far)
+    assert "no ground-truth pose within 5 ms" in open_error(folder)
+
+
+def drop_last_row(relative: str):
+    """A folder change: delete the last line of the file ``relative``."""
+
+    def change(folder: Path) -> None:
+        path = folder / relative
+        path.write_text("\n".join(path.read_text().splitlines()[:-1]) + "\n")
+
+    return change
+
+
+def shift_first_timestamp(relative: str):
+    """A folder change: move the first timestamp of the image list ``relative`` by 1 ns."""
+
+    def change(folder: Path) -> None:
+        path = folder / relative
+        path.write_text(path.read_text().replace("976,", "977,", 1))
+
+    return change
+
+
+@pytest.mark.parametrize(
+    "break_it, expected",
+    [
+        (drop_last_row("cam1/data.csv"), "cam0/data.csv: 3 images but"),
+        (shift_first_timestamp("cam1/data.csv"), "is in only one of the two image lists"),
+        (remove("cam0/data.csv"), "cam0/data.csv: image list not found"),
+        (rewrite("cam0/data.csv", "#timestamp [ns],filename", "12;a.png"), "cam0/data.csv:2: expected"),
+        (remove("cam1/sensor.yaml"), "cam1/sensor.yaml: YAML calibration file not found"),
+        (rewrite("cam0/sensor.yaml", sensor_yaml(np.eye(4)).replace("intrinsics", "intrinsic")),
+         "sensor.yaml: missing key 'intrinsics'"),
+        (rewrite("cam0/sensor.yaml", sensor_yaml(np.eye(4), "equidistant")),
+         "'distortion_model' is 'equidistant'"),
+        (rewrite("cam0/sensor.yaml", "%YAML:1.0", "T_BS: [1, 2"), "sensor.yaml: not valid YAML"),
+        (rewrite("cam1/sensor.yaml", sensor_yaml(translation(BASELINE)).replace(f"[{WIDTH},", "[64,")),
+         "cam1/sensor.yaml: resolution (64, 24) differs from cam0's (32, 24)"),
+    ],
+)
+def test_euroc_bad_input(tmp_path, break_it, expected):
+    folder = make_euroc(tmp_path, n=3)
+    break_it(folder / "mav0")
+    assert expected in open_error(folder)
+
+
+def test_euroc_malformed_groundtruth_row_names_file_and_line(tmp_path):
+    folder = make_euroc(tmp_path, n=3)
+    with (folder / "mav0" / "state_groundtruth_estimate0" / "data.csv").open("a") as file:
+        file.write("123,not,a,pose,1,0,0,0\n")
+    assert "data.csv:5" in open_error(folder, TrajectoryError)
+
+
+# ---------------------------------------------------------------- generic, generated
+
+
+def test_generic_rectified_rig(tmp_path):
+    calibration = rectified_calibration() | {"fps": 20}
+    sequence = open_sequence(make_generic(tmp_path, calibration, n=3, suffix=".jpg"))
+    assert (sequence.name, sequence.layout, sequence.rectifier) == ("my_rig", "generic", None)
+    camera = sequence.camera
+    assert (camera.fx, camera.fy, camera.cx, camera.cy) == (FX, FY, CX, CY)
+    assert (camera.width, camera.height) == (WIDTH, HEIGHT)
+    assert camera.baseline == pytest.approx(BASELINE)
+    assert np.allclose(sequence.timestamps, [0.0, 0.05, 0.1])
+    assert sequence.groundtruth is None
+    assert sequence[2].left.shape == (HEIGHT, WIDTH)
+
+
+def test_generic_times_default_to_10_hz_and_times_txt_wins(tmp_path):
+    folder = make_generic(tmp_path, rectified_calibration(), n=3)
+    assert np.allclose(open_sequence(folder).timestamps, [0.0, 0.1, 0.2])
+    write_lines(folder / "times.txt", ["10.0", "10.5", "11.25"])
+    assert np.allclose(open_sequence(folder).timestamps, [10.0, 10.5, 11.25])
+
+
+def gaussian_blobs(centres: np.ndarray, sigma: float = 1.5) -> np.ndarray:
+    """A raw (RAW_HEIGHT, RAW_WIDTH) uint8 image of bright Gaussian blobs at subpixel ``centres`` (N, 2)."""
+    v, u = np.mgrid[0:RAW_HEIGHT, 0:RAW_WIDTH]
+    image = np.zeros((RAW_HEIGHT, RAW_WIDTH))
+    for cu, cv in centres:
+        image += 255.0 * np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2.0 * sigma**2))
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def blob_centres(image: np.ndarray) -> np.ndarray:
+    """Intensity-weighted centres (N, 2) of the bright blobs of ``image``, sorted by u."""
+    count, labels = cv2.connectedComponents((image > 20).astype(np.uint8))
+    v, u = np.mgrid[0 : image.shape[0], 0 : image.shape[1]]
+    weights = image.astype(np.float64)
+    centres = []
+    for label in range(1, count):
+        w = weights * (labels == label)
+        centres.append([(w * u).sum() / w.sum(), (w * v).sum() / w.sum()])
+    return np.array(sorted(centres))
+
+
+def test_generic_unrectified_rig_is_rectified_row_aligned(tmp_path):
+    folder = make_generic(tmp_path, RAW_RIG, n=2, size=(RAW_WIDTH, RAW_HEIGHT))
+    points_left = np.array([[-0.6, -0.3, 3.0], [0.0, 0.2, 4.0], [0.7, 0.1, 5.0]])
+    R, t = np.array(RAW_RIG["R"]), np.array(RAW_RIG["t"])
+    raw = {}
+    for side, rvec, tvec in (("left", np.zeros(3), np.zeros(3)), ("right", cv2.Rodrigues(R)[0], t)):
+        K, distortion = np.array(RAW_RIG[side]["K"]), np.array(RAW_RIG[side]["distortion"])
+        raw[side] = cv2.projectPoints(points_left, rvec, tvec, K, distortion)[0].reshape(-1, 2)
+        cv2.imwrite(str(folder / side / "0000.png"), gaussian_blobs(raw[side]))
+    assert np.abs(raw["left"][:, 1] - raw["right"][:, 1]).max() > 2.0  # not aligned before
+
+    sequence = open_sequence(folder)
+    camera = sequence.camera
+    assert camera.baseline == pytest.approx(np.linalg.norm(t), rel=1e-9)
+    frame = sequence[0]
+    assert frame.left.shape == (RAW_HEIGHT, RAW_WIDTH)
+    left, right = blob_centres(frame.left), blob_centres(frame.right)
+    assert np.abs(left[:, 1] - right[:, 1]).max() < 0.1
+    expected = camera.project_stereo(points_left @ sequence.rectifier.R_rect_raw.T)
+    assert np.allclose(left, expected[:, :2], atol=0.1)
+    assert np.allclose(right[:, 0], expected[:, 2], atol=0.1)
+
+
+def test_generic_groundtruth_is_turned_into_the_rectified_left_camera(tmp_path):
+    folder = make_generic(tmp_path, RAW_RIG, n=3, size=(RAW_WIDTH, RAW_HEIGHT))
+    write_lines(folder / "groundtruth.txt", [f"{0.1 * i:.3f} {i + 3.0} 1 2 0 0 0 1" for i in range(3)])
+    sequence = open_sequence(folder)
+    R_rect_raw = sequence.rectifier.R_rect_raw
+    assert np.allclose(sequence.groundtruth.positions, np.outer([0, 1, 2], R_rect_raw[:, 0]))
+    assert np.allclose(sequence.groundtruth.poses[:, :3, :3], np.eye(3))
+
+
+def test_generic_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp_path):
+    folder = make_generic(tmp_path, RAW_RIG, n=2, size=(RAW_WIDTH, RAW_HEIGHT))
+    (folder / "left" / "0000.png").write_bytes(b"")
+    sequence = open_sequence(folder)
+    with pytest.raises(DatasetError, match="0000.png: cannot read image"):
+        sequence[0]
+    assert sequence[1].left.shape == (RAW_HEIGHT, RAW_WIDTH)
+
+
+def test_generic_image_size_other_than_calibrated_raises_when_read(tmp_path):
+    sequence = open_sequence(make_generic(tmp_path, RAW_RIG, n=2, size=(WIDTH, HEIGHT)))
+    with pytest.raises(DatasetError, match="calib.yaml: calibrated for 320x240 images but got 32x24"):
+        sequence[0]
+
+
+def without(mapping: dict, dotted_key: str) -> dict:
+    """A deep copy of ``mapping`` without ``dotted_key``."""
+    copy = yaml.safe_load(yaml.safe_dump(mapping))
+    *parents, last = dotted_key.split(".")
+    node = copy
+    for parent in parents:
+        node = node[parent]
+    del node[last]
+    return copy
+
+
+@pytest.mark.parametrize(
+    "calibration, expected",
+    [
+        (without(RAW_RIG, "right.K"), "calib.yaml: missing key 'right.K'"),
+        (without(RAW_RIG, "image_size"), "calib.yaml: missing key 'image_size'"),
+        (without(rectified_calibration(), "t"), "calib.yaml: missing key 't'"),
+        (RAW_RIG | {"R": np.diag([1.0, 1.0, 2.0]).tolist()}, "'R' is not a rotation matrix"),
+        (RAW_RIG | {"left": {"K": RAW_RIG["left"]["K"], "distortion": [0.1, 0.2, 0.3]}},
+         "'left.distortion' has 3 numbers, expected 4 or 5"),
+        (RAW_RIG | {"t": [0.12, 0.0, 0.0]}, "the right camera is not to the right"),
+        (rectified_calibration() | {"t": [BASELINE, 0.0, 0.0]}, "the right camera is not to the right"),
+        (rectified_calibration() | {"rectified": "yes"}, "'rectified' must be true or false"),
+        (rectified_calibration() | {"fps": -5}, "'fps' must be positive"),
+        (rectified_calibration() | {"image_size": [32.5, 24]},
+         "'image_size' must be two positive whole numbers"),
+        (rectified_calibration() | {"left": {"K": "fx fy"}}, "'left.K' is not a list of numbers"),
+        (["not", "a", "mapping"], "calib.yaml: expected a YAML mapping"),
+    ],
+)
+def test_generic_bad_calibration(tmp_path, calibration, expected):
+    assert expected in open_error(make_generic(tmp_path, calibration))
+
+
+@pytest.mark.parametrize(
+    "break_it, expected",
+    [
+        (remove("calib.yaml"), "calib.yaml: YAML calibration file not found"),
+        (remove("right/0002.png"), "3 left images but 2 right images"),
+        (empty("right"), "right: no .png or .jpg or .jpeg images"),
+        (rewrite("times.txt", "0.0"), "times.txt: 1 times for 3 image pairs"),
+        (rewrite("groundtruth.txt", "0.0 1 2 3 0 0 0 1", "0.1 1 2"), "groundtruth.txt:2"),
+    ],
+)
+def test_generic_bad_folder(tmp_path, break_it, expected):
+    folder = make_generic(tmp_path, rectified_calibration(), n=3)
+    break_it(folder)
+    error = TrajectoryError if "groundtruth" in expected else DatasetError
+    assert expected in open_error(folder, error)

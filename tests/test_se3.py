@@ -1,0 +1,66 @@
+"""SE(3)/SO(3) maps against scipy's rotations and against each other."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from pld_slam.geometry import se3
+
+vectors = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
+
+
+@given(vectors)
+def test_so3_exp_matches_scipy(phi):
+    assert np.allclose(se3.so3_exp(phi), Rotation.from_rotvec(phi).as_matrix(), atol=1e-12)
+
+
+@given(vectors)
+def test_so3_log_inverts_exp_up_to_pi(phi):
+    angle = np.linalg.norm(phi)
+    if angle >= np.pi - 1e-6:
+        phi = phi / angle * (2 * np.pi - angle) * -1.0  # same rotation, angle < pi
+    R = se3.so3_exp(phi)
+    assert np.allclose(se3.so3_exp(se3.so3_log(R)), R, atol=1e-9)
+
+
+def test_so3_log_near_pi_keeps_the_axis():
+    axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
+    for angle in (np.pi, np.pi - 1e-6, np.pi - 1e-3):
+        phi = se3.so3_log(se3.so3_exp(angle * axis))
+        assert np.isclose(np.linalg.norm(phi), angle, atol=1e-6)
+        assert np.allclose(se3.so3_exp(phi), se3.so3_exp(angle * axis), atol=1e-9)
+
+
+@settings(max_examples=50)
+@given(vectors, vectors)
+def test_se3_log_inverts_exp(rho, phi):
+    angle = np.linalg.norm(phi)
+    if angle > 3.0:
+        phi = phi / angle * 3.0  # keep the angle below pi, where log is unique
+    xi = np.concatenate([rho, phi])
+    assert np.allclose(se3.se3_log(se3.se3_exp(xi)), xi, atol=1e-8)
+
+
+def test_se3_exp_of_small_twist_is_first_order():
+    xi = np.array([1e-9, -2e-9, 3e-9, 1e-10, 0.0, -1e-10])
+    T = se3.se3_exp(xi)
+    assert np.allclose(T[:3, 3], xi[:3], atol=1e-15)
+    assert np.allclose(T[:3, :3], np.eye(3) + se3.hat(xi[3:]), atol=1e-15)
+
+
+@given(vectors, vectors)
+def test_inverse_composes_to_identity_for_stacks(rho, phi):
+    T = se3.make_pose(Rotation.from_rotvec(phi).as_matrix(), rho)
+    stack = np.stack([T, np.eye(4), se3.inverse(T)])
+    assert np.allclose(se3.inverse(stack) @ stack, np.eye(4), atol=1e-12)
+
+
+def test_rotation_angle_and_transform_points():
+    R = Rotation.from_rotvec([0.0, 0.3, 0.0]).as_matrix()
+    assert se3.rotation_angle(R) == pytest.approx(0.3)
+    T = se3.make_pose(R, [1.0, 2.0, 3.0])
+    p = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    expected = (T @ np.c_[p, np.ones(2)].T).T[:, :3]
+    assert np.allclose(se3.transform_points(T, p), expected)
