@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from pld_slam.geometry import se3
+from pld_slam.geometry.se3 import hat_stack, inverse, se3_exp, se3_left_jacobian, se3_log
 
 vectors = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
 
@@ -64,3 +65,32 @@ def test_rotation_angle_and_transform_points():
     p = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
     expected = (T @ np.c_[p, np.ones(2)].T).T[:, :3]
     assert np.allclose(se3.transform_points(T, p), expected)
+
+
+def test_hat_stack_is_the_cross_product():
+    rng = np.random.default_rng(7)
+    w, v = rng.normal(size=(10, 3)), rng.normal(size=(10, 3))
+    assert np.allclose(np.einsum("nij,nj->ni", hat_stack(w), v), np.cross(w, v))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_se3_left_jacobian_matches_central_differences(seed):
+    # se3_exp(xi + h) @ se3_exp(xi - h)^-1 = se3_exp(2 J h) to second order; a larger step than
+    # the residual tests' because se3_log loses digits on the tiny composed motion.
+    h = 1e-4
+    rng = np.random.default_rng(seed)
+    for xi in (rng.normal(0.0, 1.0, 6), np.concatenate([rng.normal(0.0, 1.0, 3), rng.normal(0.0, 1e-3, 3)])):
+        numeric = np.column_stack(
+            [
+                se3_log(se3_exp(xi + h * axis) @ inverse(se3_exp(xi - h * axis))) / (2.0 * h)
+                for axis in np.eye(6)
+            ]
+        )
+        assert np.allclose(numeric, se3_left_jacobian(xi), rtol=0.0, atol=1e-8)
+
+
+def test_se3_left_jacobian_series_meets_the_closed_form_at_the_switch():
+    rho, axis = np.array([0.3, -1.2, 2.0]), np.array([1.0, 2.0, 2.0]) / 3.0
+    below = se3_left_jacobian(np.concatenate([rho, (1e-2 - 1e-12) * axis]))
+    above = se3_left_jacobian(np.concatenate([rho, (1e-2 + 1e-12) * axis]))
+    assert np.allclose(below, above, rtol=0.0, atol=1e-10)

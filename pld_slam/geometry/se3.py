@@ -16,6 +16,18 @@ def hat(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
 
 
+def hat_stack(w: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrices (N, 3, 3) of N 3-vectors (N, 3): ``out[i] @ v == cross(w[i], v)``.
+
+    The stacked form of `hat`.
+    """
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -w[:, 2], w[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = w[:, 2], -w[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -w[:, 1], w[:, 0]
+    return out
+
+
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of a rotation vector ``phi`` (3,) [rad] (Rodrigues)."""
     phi = np.asarray(phi, dtype=np.float64)
@@ -50,7 +62,7 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return theta / (2.0 * np.sin(theta)) * vee
 
 
-def _left_jacobian(phi: np.ndarray) -> np.ndarray:
+def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
     """SO(3) left Jacobian J(phi), shape (3, 3)."""
     theta = np.linalg.norm(phi)
     K = hat(phi)
@@ -63,19 +75,54 @@ def _left_jacobian(phi: np.ndarray) -> np.ndarray:
     )
 
 
+def se3_left_jacobian(xi: np.ndarray) -> np.ndarray:
+    """SE(3) left Jacobian (6, 6) of a twist ``xi = (rho, phi)`` (6,).
+
+    ``se3_exp(xi + d) = se3_exp(J @ d) @ se3_exp(xi)`` to first order in ``d``;
+    ``J = [[J_l(phi), Q(rho, phi)], [0, J_l(phi)]]`` (Barfoot, State Estimation for
+    Robotics, eq. 7.85-7.86).
+    """
+    rho, phi = xi[:3], xi[3:]
+    J = np.zeros((6, 6))
+    J[:3, :3] = J[3:, 3:] = so3_left_jacobian(phi)
+    J[:3, 3:] = _translation_coupling(rho, phi)
+    return J
+
+
+def _translation_coupling(rho: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """The block ``Q(rho, phi)`` (3, 3) of the SE(3) left Jacobian; series below 1e-2 rad."""
+    theta = np.linalg.norm(phi)
+    R, P = hat(rho), hat(phi)
+    if theta < _SMALL_ANGLE:
+        t2 = theta * theta
+        c1, c2, c3 = 1 / 6 - t2 / 120, 1 / 24 - t2 / 720, 1 / 120 - t2 / 2520
+    else:
+        s, c = np.sin(theta), np.cos(theta)
+        c1 = (theta - s) / theta**3
+        c2 = (theta * theta / 2 + c - 1) / theta**4
+        c3 = (2 * theta - 3 * s + theta * c) / (2 * theta**5)
+    PRP = P @ R @ P
+    return (
+        0.5 * R
+        + c1 * (P @ R + R @ P + PRP)
+        + c2 * (P @ P @ R + R @ P @ P - 3 * PRP)
+        + c3 * (PRP @ P + P @ PRP)
+    )
+
+
 def se3_exp(xi: np.ndarray) -> np.ndarray:
     """Pose (4, 4) of a twist ``xi = (rho, phi)`` (6,)."""
     xi = np.asarray(xi, dtype=np.float64)
     T = np.eye(4)
     T[:3, :3] = so3_exp(xi[3:])
-    T[:3, 3] = _left_jacobian(xi[3:]) @ xi[:3]
+    T[:3, 3] = so3_left_jacobian(xi[3:]) @ xi[:3]
     return T
 
 
 def se3_log(T: np.ndarray) -> np.ndarray:
     """Twist ``(rho, phi)`` (6,) of a pose (4, 4); inverse of `se3_exp`."""
     phi = so3_log(T[:3, :3])
-    rho = np.linalg.solve(_left_jacobian(phi), T[:3, 3])
+    rho = np.linalg.solve(so3_left_jacobian(phi), T[:3, 3])
     return np.concatenate([rho, phi])
 
 

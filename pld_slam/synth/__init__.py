@@ -1,0 +1,27 @@
+"""The synthetic stereo world: the project's own deterministic test data.
+
+A textured street scene made of quads (facades with windows, paving, road markings, parked
+cars, poles, crates), rendered as rectified stereo pairs by a vectorised ray caster, with
+exact ground-truth poses and per-frame masks of the pixels on moving objects.
+
+- `build_scenario` builds one of `SCENARIOS` in memory; ``Scenario.render_frame(i)`` gives
+  the left and right uint8 images and the left dynamic mask of frame ``i``.
+- `write_sequence` writes a scenario in the KITTI odometry layout (plus dynamic masks).
+"""
+
+from pld_slam.synth.render import SynthFrame, View, render_stereo_frame
+from pld_slam.synth.scenarios import DEFAULT_FRAMES, MIN_LOOP_FRAMES, SCENARIOS, Scenario, build_scenario
+from pld_slam.synth.writer import SynthSummary, write_sequence
+
+__all__ = [
+    "DEFAULT_FRAMES",
+    "MIN_LOOP_FRAMES",
+    "SCENARIOS",
+    "Scenario",
+    "SynthFrame",
+    "SynthSummary",
+    "View",
+    "build_scenario",
+    "render_stereo_frame",
+    "write_sequence",
+]

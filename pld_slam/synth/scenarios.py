@@ -1,0 +1,675 @@
+"""The four synthetic scenarios: a camera path, the street built along it, and its movers.
+
+- ``static``: a street with gentle curves: buildings on both sides, parked cars, poles,
+  crates; the camera drives in the right lane at 8 m/s (0.8 m per frame at 10 Hz) with a
+  slight 6-DoF wobble (steering, pitch and roll bob, height bob, lateral sway).
+- ``dynamic``: the same street (same seed, same scene) plus traffic: a truck 4-6 m ahead in
+  our lane, oncoming cars, pedestrians on both sidewalks and cyclists crossing the street.
+- ``loop``: a block of 96 m x 72 m (rectangle with 18 m corner radius) driven once
+  clockwise, buildings inside the block and outside the road; frame i sits at arc length
+  ``L * (i / (N - 1) mod 1)`` so the last pose is the first one, bit for bit.
+- ``lowtexture``: the street's path with plain walls of uniform panels, pillars, door frames
+  and a uniform road: edges are nearly the only structure.
+
+Conventions (see `pld_slam.synth.scene`): the world is the first left camera (x right,
+y down, z forward), the ground is the plane ``y = CAMERA_HEIGHT``. Positions along a path
+are ``(s, l)``: arc length ``s`` [m] and lateral offset ``l`` [m], positive to the right,
+``l = 0`` on the camera's lane centre.
+
+Chosen here (the issue leaves them open): fx = fy = 0.6 * width (80 degrees horizontal
+field of view, close to KITTI's), cx = width / 2, cy = height / 2 with pixel centres at
+integer coordinates, baseline 0.5 m, camera 1.6 m above the road, 10 Hz.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from pld_slam.errors import PldSlamError
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import make_pose, so3_exp
+from pld_slam.synth import textures as tx
+from pld_slam.synth.render import SynthFrame, View, render_stereo_frame, render_stereo_views
+from pld_slam.synth.scene import (
+    DOWN,
+    UP,
+    BoxMaterials,
+    FacadeMaterials,
+    MovingObject,
+    Quads,
+    Scene,
+    box,
+    building,
+    floor,
+    plain_building,
+    pole,
+    wall,
+    yaw_pose,
+)
+
+SCENARIOS = ("static", "dynamic", "loop", "lowtexture")
+"""Names accepted by `build_scenario`."""
+DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100}
+MIN_LOOP_FRAMES = 300
+
+CAMERA_HEIGHT = 1.6
+"""Height [m] of the cameras above the road; also the world y of the ground."""
+BASELINE = 0.5
+FOCAL_PER_WIDTH = 0.6
+FRAME_RATE = 10.0
+STREET_STEP = 0.8
+"""Distance [m] driven per frame on the open street (8 m/s)."""
+VIEW_AHEAD = 130.0
+"""Street [m] built beyond the last camera position (what it can still see)."""
+SUN = np.array([-0.45, -0.8, 0.4]) / np.linalg.norm([-0.45, -0.8, 0.4])
+
+# The street cross-section, as lateral offsets l [m].
+LANE = 3.5
+PARKING = 2.4
+SIDEWALK = 3.0
+CURB_HEIGHT = 0.15
+ROAD_LEFT = -1.5 * LANE - PARKING
+ROAD_RIGHT = 0.5 * LANE + PARKING
+ONCOMING_LANE = -LANE
+STRIP_MAX = 6.0
+"""Longest ground strip [m]; shorter on curves so strips of a band stay within 15 cm."""
+
+# Loop block: straights of LOOP_A and LOOP_B metres joined by quarter circles.
+LOOP_A, LOOP_B, LOOP_RADIUS = 60.0, 36.0, 18.0
+PATH_STEP = 0.25
+
+
+def rng_for(seed: int, *tags: int) -> np.random.Generator:
+    """An independent random stream per purpose, so adding draws to one leaves the others."""
+    return np.random.default_rng([seed, *tags])
+
+
+# --- the path ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Path:
+    """A curve on the ground, sampled densely: the lane the camera drives along.
+
+    Attributes
+    ----------
+    s : np.ndarray
+        (K,) arc length [m], increasing; ``s = 0`` is the first camera's position.
+    heading : np.ndarray
+        (K,) yaw [rad] about the down axis (positive = turned right); 0 at ``s = 0``.
+    curvature : np.ndarray
+        (K,) ``d heading / d s`` [1/m] of the step starting at each sample.
+    position : np.ndarray
+        (K, 3) ground point in the world frame, ``(0, CAMERA_HEIGHT, 0)`` at ``s = 0``.
+    """
+
+    s: np.ndarray
+    heading: np.ndarray
+    curvature: np.ndarray
+    position: np.ndarray
+
+    @classmethod
+    def integrate(cls, steps: np.ndarray, curvature: np.ndarray, origin: int) -> "Path":
+        """The path of arc ``steps`` (K-1,) [m] of constant ``curvature`` (K-1,) [1/m], placed
+        so that sample ``origin`` lies on the ground right under the world origin, heading
+        along z. Each step is integrated exactly (a circular arc)."""
+        turn = curvature * steps
+        heading = np.concatenate([[0.0], np.cumsum(turn)])
+        chord = steps * np.sinc(turn / (2.0 * np.pi))
+        middle = heading[:-1] + 0.5 * turn
+        xz = np.concatenate([[[0.0, 0.0]], np.cumsum(np.column_stack(
+            [chord * np.sin(middle), chord * np.cos(middle)]), axis=0)])
+        heading0 = heading[origin]
+        xz = xz - xz[origin]
+        cos0, sin0 = np.cos(heading0), np.sin(heading0)
+        x = cos0 * xz[:, 0] - sin0 * xz[:, 1]
+        z = sin0 * xz[:, 0] + cos0 * xz[:, 1]
+        s = np.concatenate([[0.0], np.cumsum(steps)])
+        return cls(
+            s=s - s[origin],
+            heading=heading - heading0,
+            curvature=np.append(curvature, curvature[-1]),
+            position=np.column_stack([x, np.full_like(x, CAMERA_HEIGHT), z]),
+        )
+
+    @property
+    def length(self) -> float:
+        """Arc length [m] from the first to the last sample."""
+        return float(self.s[-1] - self.s[0])
+
+    def heading_at(self, s) -> np.ndarray:
+        """Heading [rad] at arc lengths ``s`` (scalar or (n,))."""
+        return np.interp(s, self.s, self.heading)
+
+    def curvature_at(self, s) -> np.ndarray:
+        """Curvature [1/m] at arc lengths ``s`` (scalar or (n,))."""
+        return self.curvature[np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.s) - 1)]
+
+    def ground_point(self, s, lateral) -> np.ndarray:
+        """World points (n, 3) on the ground at ``(s, l)`` (scalars or (n,))."""
+        s = np.atleast_1d(np.asarray(s, dtype=np.float64))
+        centre = np.column_stack([np.interp(s, self.s, self.position[:, k]) for k in range(3)])
+        return centre + np.asarray(lateral)[..., None] * right_of(self.heading_at(s))
+
+    def pose(self, s: float, lateral: float, yaw: float = 0.0) -> np.ndarray:
+        """``T_w_o`` (4, 4) of an upright object on the ground at ``(s, l)``, turned by
+        ``yaw`` [rad] from the path's heading."""
+        return yaw_pose(self.ground_point(s, lateral)[0], float(self.heading_at(s)) + yaw)
+
+
+def right_of(heading) -> np.ndarray:
+    """Horizontal unit vectors (n, 3) to the right of headings (n,) [rad]."""
+    heading = np.atleast_1d(heading)
+    return np.column_stack([np.cos(heading), np.zeros_like(heading), -np.sin(heading)])
+
+
+def forward_of(heading) -> np.ndarray:
+    """Horizontal unit vectors (n, 3) along headings (n,) [rad]."""
+    heading = np.atleast_1d(heading)
+    return np.column_stack([np.sin(heading), np.zeros_like(heading), np.cos(heading)])
+
+
+def street_path(seed: int, s_start: float, s_end: float) -> Path:
+    """A street with gentle curves from ``s_start`` to ``s_end`` [m]: the curvature is a sum
+    of two sines (wavelengths 140-320 m, radius never under 100 m, heading swings of
+    roughly 10 degrees)."""
+    rng = rng_for(seed, 1)
+    wavelengths = rng.uniform(140.0, 320.0, size=2)
+    amplitudes = rng.uniform(1.0 / 400.0, 1.0 / 200.0, size=2)
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
+    first = int(np.floor(s_start / PATH_STEP))
+    s = PATH_STEP * np.arange(first, int(np.ceil(s_end / PATH_STEP)) + 1)
+    middle = s[:-1] + 0.5 * PATH_STEP
+    curvature = sum(a * np.sin(2.0 * np.pi * middle / lam + p)
+                    for a, lam, p in zip(amplitudes, wavelengths, phases))
+    return Path.integrate(np.full(len(middle), PATH_STEP), curvature, origin=-first)
+
+
+def loop_path() -> Path:
+    """The closed block: start halfway along a long side, four right turns of
+    `LOOP_RADIUS`, back to the start with the same heading."""
+    quarter = 0.5 * np.pi * LOOP_RADIUS
+    pieces = [(0.5 * LOOP_A, 0.0), (quarter, 1.0 / LOOP_RADIUS), (LOOP_B, 0.0),
+              (quarter, 1.0 / LOOP_RADIUS), (LOOP_A, 0.0), (quarter, 1.0 / LOOP_RADIUS),
+              (LOOP_B, 0.0), (quarter, 1.0 / LOOP_RADIUS), (0.5 * LOOP_A, 0.0)]
+    steps, curvature = [], []
+    for length, kappa in pieces:
+        n = int(np.ceil(length / PATH_STEP))
+        steps.append(np.full(n, length / n))
+        curvature.append(np.full(n, kappa))
+    return Path.integrate(np.concatenate(steps), np.concatenate(curvature), origin=0)
+
+
+# --- the camera -------------------------------------------------------------------------------
+
+WOBBLE = {
+    # name: ((amplitude, wavelength [m]), ...): the chosen 6-DoF perturbation of the ride.
+    "yaw": ((0.005, 37.0),),
+    "pitch": ((0.007, 6.5), (0.004, 17.0)),
+    "roll": ((0.005, 9.0),),
+    "height": ((0.02, 5.0),),
+    "sway": ((0.12, 45.0),),
+}
+
+
+def wobble(name: str, s: np.ndarray, period: float) -> np.ndarray:
+    """The ``name`` perturbation at arc lengths ``s`` (N,): sines with a whole number of
+    cycles per ``period`` [m] (so a closed loop repeats exactly) and zero at ``s = 0``."""
+    total = np.zeros_like(s)
+    for amplitude, wavelength in WOBBLE[name]:
+        cycles = max(1, round(period / wavelength))
+        total += amplitude * np.sin(2.0 * np.pi * cycles * s / period)
+    return total
+
+
+def camera_poses(path: Path, s: np.ndarray, period: float) -> np.ndarray:
+    """Left-camera poses ``T_w_c`` (N, 4, 4) at arc lengths ``s`` (N,): on the lane centre,
+    `CAMERA_HEIGHT` above the road, plus the `WOBBLE`; identity at ``s = 0``."""
+    heading = path.heading_at(s)
+    yaw = heading + wobble("yaw", s, period)
+    pitch, roll = wobble("pitch", s, period), wobble("roll", s, period)
+    centre = path.ground_point(s, wobble("sway", s, period))
+    height = CAMERA_HEIGHT + wobble("height", s, period)
+    poses = np.empty((len(s), 4, 4))
+    for i in range(len(s)):
+        R = (so3_exp(np.array([0.0, yaw[i], 0.0])) @ so3_exp(np.array([pitch[i], 0.0, 0.0]))
+             @ so3_exp(np.array([0.0, 0.0, roll[i]])))
+        poses[i] = make_pose(R, centre[i] + height[i] * UP)
+    return poses
+
+
+def make_camera(size: tuple[int, int]) -> StereoCamera:
+    """The rectified stereo camera for an image ``size = (width, height)`` (see module doc)."""
+    width, height = size
+    focal = FOCAL_PER_WIDTH * width
+    return StereoCamera(fx=focal, fy=focal, cx=width / 2.0, cy=height / 2.0,
+                        baseline=BASELINE, width=width, height=height)
+
+
+# --- materials ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Palette:
+    """The look of a world: its textures and which material each kind of surface uses."""
+
+    textures: tuple[tx.Texture, ...]
+    ground: int
+    road: int
+    sidewalk: int
+    curb: int
+    facades: tuple[FacadeMaterials, ...]
+    metal: int
+    signs: tuple[int, ...]
+    car: BoxMaterials
+    truck: BoxMaterials
+    pedestrian: BoxMaterials
+    cyclist: BoxMaterials
+    crate: BoxMaterials
+    plain: bool
+
+
+CAR_SIZE = (1.8, 1.5, 4.4)
+TRUCK_SIZE = (2.5, 3.4, 7.0)
+PEDESTRIAN_SIZE = (0.5, 1.75, 0.35)
+CYCLIST_SIZE = (0.5, 1.75, 1.7)
+
+
+def textured_palette(seed: int) -> Palette:
+    """Materials of the textured street (static, dynamic and loop scenarios)."""
+    rng = rng_for(seed, 2)
+    textures: list[tx.Texture] = []
+
+    def add(texture: tx.Texture) -> int:
+        textures.append(texture)
+        return len(textures) - 1
+
+    road_width = ROAD_RIGHT - ROAD_LEFT
+    ground = add(tx.asphalt(rng))
+    road = add(tx.road(rng, road_width, dashed_at=[-0.5 * LANE - ROAD_LEFT],
+                       solid_at=[PARKING, road_width - PARKING]))
+    sidewalk, curb_material = add(tx.paving(rng)), add(tx.curb(rng))
+    facades = []
+    for make_upper in (tx.brick_facade, tx.plaster_facade, tx.panel_facade) * 2:
+        upper = add(make_upper(rng))
+        facades.append(FacadeMaterials(upper=upper, ground=add(tx.shopfront(rng)), side=upper))
+    metal = add(tx.metal(rng))
+    signs = tuple(add(tx.sign(rng)) for _ in range(3))
+    roof = add(tx.flat())
+    car = BoxMaterials(side=add(tx.car_side(rng, (CAR_SIZE[2], CAR_SIZE[1]))),
+                       end=add(tx.car_end(rng, CAR_SIZE[:2])), top=roof)
+    truck = BoxMaterials(side=add(tx.truck_side(rng, (TRUCK_SIZE[2], TRUCK_SIZE[1]))),
+                         end=add(tx.truck_rear(rng, TRUCK_SIZE[:2])), top=roof)
+    pedestrian = BoxMaterials(side=add(tx.person(rng, PEDESTRIAN_SIZE[2])),
+                              end=add(tx.person(rng, PEDESTRIAN_SIZE[0])), top=roof)
+    cyclist = BoxMaterials(side=add(tx.bicycle_side(rng)), end=pedestrian.end, top=roof)
+    crate_material = add(tx.crate(rng))
+    return Palette(tuple(textures), ground, road, sidewalk, curb_material, tuple(facades), metal,
+                   signs, car, truck, pedestrian, cyclist,
+                   BoxMaterials(crate_material, crate_material, crate_material), plain=False)
+
+
+def plain_palette() -> Palette:
+    """Materials of the low-texture world: one uniform texture; shades come from albedos."""
+    flat = BoxMaterials(0, 0, 0)
+    return Palette((tx.flat(),), 0, 0, 0, 0, (FacadeMaterials(0, 0, 0),), 0, (), flat, flat, flat,
+                   flat, flat, plain=True)
+
+
+# --- the street -------------------------------------------------------------------------------
+
+
+def strip_edges(path: Path, s_start: float, s_end: float) -> np.ndarray:
+    """Arc lengths (n+1,) cutting ``[s_start, s_end]`` into ground strips: `STRIP_MAX` long
+    on straights, shorter on curves (adjacent strips 4 m from the path then part by at
+    most 15 cm)."""
+    edges = [s_start]
+    while edges[-1] < s_end:
+        kappa = abs(float(path.curvature_at(edges[-1])))
+        edges.append(min(edges[-1] + min(STRIP_MAX, 0.15 / (4.0 * kappa + 1e-9)), s_end))
+    return np.array(edges)
+
+
+@dataclass(frozen=True)
+class Strips:
+    """Ground strips of one band ``[l_in, l_out]``: centres (n, 3) on the band's middle
+    line, forward directions (n, 3), lengths (n,) along that line and the arc length along
+    it (n,) at each strip's front and back [m]."""
+
+    centre: np.ndarray
+    forward: np.ndarray
+    length: np.ndarray
+    arc_front: np.ndarray
+    arc_back: np.ndarray
+
+
+def band_strips(path: Path, edges: np.ndarray, lateral: float, half_width: float = 0.0) -> Strips:
+    """Strips between arc lengths ``edges`` (n+1,) along the line at offset ``lateral`` of a
+    band ``2 * half_width`` [m] wide.
+
+    A strip keeps the path's heading at its middle; its length is scaled by
+    ``1 - curvature * lateral`` (shorter inside a bend) and grown by the wedge a bend opens
+    at the band's outer edge, so neighbours overlap slightly instead of leaving a gap. The
+    arc length along the offset line is ``s - lateral * heading(s)``, which keeps textures
+    continuous across strips.
+    """
+    middle = 0.5 * (edges[:-1] + edges[1:])
+    heading = path.heading_at(middle)
+    arc = edges - lateral * path.heading_at(edges)
+    return Strips(
+        centre=path.ground_point(middle, np.full(len(middle), lateral)),
+        forward=forward_of(heading),
+        length=np.diff(arc) + np.abs(path.curvature_at(middle) * np.diff(edges)) * half_width,
+        arc_front=arc[1:],
+        arc_back=arc[:-1],
+    )
+
+
+def ground_band(path: Path, edges: np.ndarray, l_in: float, l_out: float, lift: float,
+                material: int, albedo: float, across_offset: float) -> Quads:
+    """Floor strips of the band ``l_in < l_out`` [m], ``lift`` [m] above the road; texture
+    columns start ``across_offset`` [m] in, rows run backwards along the band."""
+    strips = band_strips(path, edges, 0.5 * (l_in + l_out), 0.5 * (l_out - l_in))
+    offsets = np.column_stack([np.full(len(strips.length), across_offset), -strips.arc_front])
+    return floor(strips.centre + lift * UP, strips.forward, l_out - l_in, strips.length,
+                 material, albedo, offsets)
+
+
+def curb_band(path: Path, edges: np.ndarray, lateral: float, facing_right: bool,
+              material: int, albedo: float) -> Quads:
+    """The vertical curb faces at offset ``lateral`` facing the road (right or left)."""
+    strips = band_strips(path, edges, lateral)
+    right = np.cross(DOWN, strips.forward)
+    normal = right if facing_right else -right
+    along = strips.arc_back if facing_right else -strips.arc_front
+    return wall(strips.centre, normal, strips.length, CURB_HEIGHT, material, albedo,
+                np.column_stack([along, np.zeros_like(along)]))
+
+
+def street_ground(path: Path, s_start: float, s_end: float, palette: Palette) -> list[Quads]:
+    """Road (two bands, split on the camera lane centre), sidewalks and curbs."""
+    edges = strip_edges(path, s_start, s_end)
+    road_albedo, side_albedo, curb_albedo = (0.45, 0.75, 0.9) if palette.plain else (1.0, 1.0, 1.0)
+    parts = [
+        ground_band(path, edges, ROAD_LEFT, 0.0, 0.0, palette.road, road_albedo, 0.0),
+        ground_band(path, edges, 0.0, ROAD_RIGHT, 0.0, palette.road, road_albedo, -ROAD_LEFT),
+        ground_band(path, edges, ROAD_RIGHT, ROAD_RIGHT + SIDEWALK, CURB_HEIGHT, palette.sidewalk,
+                    side_albedo, 0.0),
+        ground_band(path, edges, ROAD_LEFT - SIDEWALK, ROAD_LEFT, CURB_HEIGHT, palette.sidewalk,
+                    side_albedo, 0.0),
+        curb_band(path, edges, ROAD_RIGHT, False, palette.curb, curb_albedo),
+        curb_band(path, edges, ROAD_LEFT, True, palette.curb, curb_albedo),
+    ]
+    if palette.plain:
+        centre_line = -0.5 * LANE
+        parts.append(ground_band(path, edges, centre_line - 0.08, centre_line + 0.08, 0.005,
+                                 palette.road, 0.95, 0.0))
+    return parts
+
+
+def ground_plane(path: Path, palette: Palette) -> Quads:
+    """One large floor 2 cm under the road, 400 m beyond the path all round."""
+    low, high = path.position.min(axis=0), path.position.max(axis=0)
+    centre = 0.5 * (low + high) + 0.02 * DOWN
+    size = high - low + 800.0
+    return floor(centre, np.array([0.0, 0.0, 1.0]), size[0], size[2], palette.ground,
+                 0.55 if palette.plain else 1.0)
+
+
+def building_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+                 palette: Palette) -> list[Quads]:
+    """Buildings along one side (``side`` +1 right, -1 left) between two arc lengths: 9-24 m
+    wide (whole bays), 7-19 m tall, set back 0-1 m from the sidewalk, gaps of 0-5 m."""
+    edge = ROAD_RIGHT + SIDEWALK if side > 0 else ROAD_LEFT - SIDEWALK
+    parts = []
+    s = s_start + rng.uniform(0.0, 3.0)
+    while True:
+        lateral = edge + side * rng.uniform(0.0, 1.0)
+        width = 3.0 * rng.integers(3, 9)
+        height = tx.FLOOR_HEIGHT * rng.integers(1, 6) + 4.0
+        depth = rng.uniform(8.0, 14.0)
+        kappa = float(path.curvature_at(s))
+        if abs(kappa) > 1.0 / 50.0:
+            width = 9.0
+        span = width / max(1.0 - kappa * lateral, 0.2)
+        if s + span > s_end:
+            return parts
+        T_w_o = path.pose(s + 0.5 * span, lateral, side * 0.5 * np.pi)
+        parts.append(make_building(palette, rng, width, depth, height).transformed(T_w_o))
+        s += span + (0.0 if rng.random() < 0.4 else rng.uniform(1.5, 5.0))
+
+
+def make_building(palette: Palette, rng: np.random.Generator, width: float, depth: float,
+                  height: float) -> Quads:
+    """One building in its object frame, textured or plain after the palette."""
+    if palette.plain:
+        panels = rng.uniform(0.5, 1.0, size=int(rng.integers(2, 5)))
+        doors = rng.uniform(-0.4, 0.4, size=int(rng.integers(0, 3))) * width
+        return plain_building(width, depth, height, 0, panels, doors, rng.uniform(0.3, 0.6),
+                              rng.uniform(0.4, 1.0))
+    facade = palette.facades[int(rng.integers(len(palette.facades)))]
+    return building(width, depth, height, facade, tex_shift=3.0 * rng.integers(0, 4))
+
+
+def pole_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+             palette: Palette) -> list[Quads]:
+    """Street-light poles near the curb every 14-24 m, arms over the road, some with signs."""
+    lateral = ROAD_RIGHT + 0.45 if side > 0 else ROAD_LEFT - 0.45
+    parts = []
+    s = s_start + rng.uniform(2.0, 10.0)
+    while s < s_end:
+        signed = palette.signs and rng.random() < 0.4
+        sign_material = palette.signs[int(rng.integers(len(palette.signs)))] if signed else None
+        quads = pole(rng.uniform(4.5, 6.5), rng.uniform(1.0, 1.8), palette.metal, sign_material)
+        lift = CURB_HEIGHT * UP
+        T_w_o = path.pose(s, lateral, 0.0 if side > 0 else np.pi)
+        T_w_o[:3, 3] += lift
+        parts.append(quads.transformed(T_w_o))
+        s += rng.uniform(14.0, 24.0)
+    return parts
+
+
+def parked_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+               palette: Palette) -> list[Quads]:
+    """Parked cars in the parking lane, one 6.5 m slot in two taken, random paint."""
+    lateral = ROAD_RIGHT - 0.5 * PARKING if side > 0 else ROAD_LEFT + 0.5 * PARKING
+    parts = []
+    for s in np.arange(s_start + 3.0, s_end, 6.5):
+        taken, turned, paint, shift = rng.random(), rng.random(), rng.uniform(0.3, 1.1), rng.uniform(-0.8, 0.8)
+        if taken < 0.5:
+            yaw = np.pi if (turned < 0.3) != (side < 0) else 0.0
+            car = box(*CAR_SIZE, palette.car, float(paint))
+            parts.append(car.transformed(path.pose(s + shift, lateral, yaw)))
+    return parts
+
+
+def crate_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+              palette: Palette) -> list[Quads]:
+    """Crates (1 m cubes, sometimes two stacked) on the sidewalk every 15-40 m."""
+    lateral = ROAD_RIGHT + SIDEWALK - 0.7 if side > 0 else ROAD_LEFT - SIDEWALK + 0.7
+    parts = []
+    s = s_start + rng.uniform(5.0, 20.0)
+    while s < s_end:
+        stack = int(rng.integers(1, 3))
+        yaw = rng.uniform(-0.3, 0.3)
+        for level in range(stack):
+            T_w_o = path.pose(s, lateral, yaw)
+            T_w_o[:3, 3] += (CURB_HEIGHT + level) * UP
+            parts.append(box(1.0, 1.0, 1.0, palette.crate, float(rng.uniform(0.8, 1.1))).transformed(T_w_o))
+        s += rng.uniform(15.0, 40.0)
+    return parts
+
+
+def street(path: Path, s_start: float, s_end: float, seed: int, palette: Palette) -> Quads:
+    """All static quads of a street between two arc lengths, including the ground plane.
+    Each row of objects draws from its own random stream."""
+    parts = [ground_plane(path, palette), *street_ground(path, s_start, s_end, palette)]
+    rows: list[Callable] = [building_row, pole_row, parked_row, crate_row]
+    for tag, make_row in enumerate(rows):
+        for side in (1, -1):
+            parts += make_row(path, s_start, s_end, side, rng_for(seed, 10 + tag, side + 1), palette)
+    return Quads.concat(parts)
+
+
+# --- movers ------------------------------------------------------------------------------------
+
+
+def track_poses(path: Path, s: np.ndarray, lateral: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """``T_w_o`` (N, 4, 4) of an upright object at ``(s, l)`` (N,) turned ``yaw`` (N,) from
+    the path heading."""
+    return np.stack([path.pose(float(si), float(li), float(yi)) for si, li, yi in zip(s, lateral, yaw)])
+
+
+def waypoint_track(times: np.ndarray, waypoints: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Position ``(s, l)`` and heading (N,) each at ``times`` (N,) [s] of an object moving
+    straight between ``waypoints`` (K, 3) = ``(time, s, l)``; it faces along its motion."""
+    s = np.interp(times, waypoints[:, 0], waypoints[:, 1])
+    lateral = np.interp(times, waypoints[:, 0], waypoints[:, 2])
+    legs = np.arctan2(np.diff(waypoints[:, 2]), np.diff(waypoints[:, 1]))
+    leg = np.clip(np.searchsorted(waypoints[:, 0], times) - 1, 0, len(legs) - 1)
+    return s, lateral, legs[leg]
+
+
+def mover(object_id: int, quads: Quads, poses: np.ndarray) -> MovingObject:
+    """A moving object with its id stamped on its quads."""
+    return MovingObject(quads=quads.with_object_id(object_id), poses=poses)
+
+
+def traffic(path: Path, camera_s: np.ndarray, times: np.ndarray, s_end: float, seed: int,
+            palette: Palette) -> tuple[MovingObject, ...]:
+    """The movers of the dynamic scenario (chosen so they cover 10-40 % of the left image):
+
+    - a truck 4.2-5.8 m ahead in our lane (its gap breathing over 8 s);
+    - oncoming cars at 7 m/s, 25-45 m apart;
+    - pedestrians walking both ways on both sidewalks at 1.2-1.6 m/s, 8-16 m apart;
+    - a cyclist crossing the street every ~45 m while still 25-55 m ahead of us, riding
+      along the sidewalks (4 m/s) before and after.
+    """
+    rng = rng_for(seed, 3)
+    movers: list[MovingObject] = []
+    gap = 5.0 + 0.8 * np.sin(2.0 * np.pi * times / 8.0)
+    truck_s = camera_s + gap + 0.5 * TRUCK_SIZE[2]
+    zeros = np.zeros_like(times)
+    movers.append(mover(1, box(*TRUCK_SIZE, palette.truck, 0.9),
+                        track_poses(path, truck_s, zeros, zeros)))
+    s = 15.0
+    while s < s_end + 60.0:
+        car = box(*CAR_SIZE, palette.car, float(rng.uniform(0.3, 1.1)))
+        movers.append(mover(len(movers) + 1, car,
+                            track_poses(path, s - 7.0 * times, zeros + ONCOMING_LANE, zeros + np.pi)))
+        s += rng.uniform(25.0, 45.0)
+    for side in (1, -1):
+        lanes = (ROAD_RIGHT + 0.8, ROAD_RIGHT + 2.2) if side > 0 else (ROAD_LEFT - 2.2, ROAD_LEFT - 0.8)
+        s = rng.uniform(0.0, 8.0)
+        while s < s_end:
+            speed = rng.uniform(1.2, 1.6) * rng.choice([-1.0, 1.0])
+            walker = box(*PEDESTRIAN_SIZE, palette.pedestrian, float(rng.uniform(0.7, 1.1)))
+            lateral = zeros + rng.uniform(*lanes)
+            yaw = zeros + (0.0 if speed > 0 else np.pi)
+            movers.append(mover(len(movers) + 1, walker, track_poses(path, s + speed * times, lateral, yaw)))
+            s += rng.uniform(8.0, 16.0)
+    far_side, near_side = ROAD_LEFT - 1.5, ROAD_RIGHT + 1.5
+    for crossing in np.arange(35.0, s_end, 45.0):
+        start = (crossing - 55.0) / (STREET_STEP * FRAME_RATE)
+        waypoints = np.array([
+            [start - 100.0, crossing - 400.0, far_side],
+            [start, crossing, far_side],
+            [start + 4.0, crossing, near_side],
+            [start + 104.0, crossing + 400.0, near_side],
+        ])
+        s, lateral, yaw = waypoint_track(times, waypoints)
+        movers.append(mover(len(movers) + 1, box(*CYCLIST_SIZE, palette.cyclist),
+                            track_poses(path, s, lateral, yaw)))
+    return tuple(movers)
+
+
+# --- scenarios ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A synthetic stereo sequence held in memory; frames are rendered on demand.
+
+    Attributes
+    ----------
+    name : str
+        One of `SCENARIOS`.
+    seed : int
+        Seed of the scene, textures, movers and sensor noise.
+    camera : StereoCamera
+        The rectified stereo camera.
+    poses : np.ndarray
+        (N, 4, 4) ground-truth ``T_w_c`` of the left camera; ``poses[0]`` is the identity.
+    timestamps : np.ndarray
+        (N,) frame times [s] at `FRAME_RATE`.
+    scene : Scene
+        The quads, movers, textures and light.
+    """
+
+    name: str
+    seed: int
+    camera: StereoCamera
+    poses: np.ndarray
+    timestamps: np.ndarray
+    scene: Scene
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.poses)
+
+    def render_frame(self, index: int) -> SynthFrame:
+        """Left and right uint8 images and the left dynamic mask of frame ``index``."""
+        return render_stereo_frame(self.scene, self.camera, self.poses[index], index, self.seed)
+
+    def render_views(self, index: int) -> tuple[View, View]:
+        """Noise-free left and right views (with depth and id buffers) of frame ``index``."""
+        return render_stereo_views(self.scene, self.camera, self.poses[index], index)
+
+
+def check_request(name: str, n_frames: int | None, size: tuple[int, int]) -> int:
+    """The frame count to render, or a `PldSlamError` naming what is wrong with the request."""
+    if name not in SCENARIOS:
+        raise PldSlamError(f"unknown synthetic scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
+    if len(size) != 2 or any(int(v) != v or v <= 0 for v in size):
+        raise PldSlamError(f"image size must be two positive integers (width, height), got {tuple(size)}")
+    frames = DEFAULT_FRAMES[name] if n_frames is None else n_frames
+    if frames < 1:
+        raise PldSlamError(f"scenario {name!r} needs at least 1 frame, got {frames}")
+    if name == "loop" and frames < MIN_LOOP_FRAMES:
+        raise PldSlamError(
+            f"scenario 'loop' needs at least {MIN_LOOP_FRAMES} frames to drive around the block, got {frames}")
+    return int(frames)
+
+
+def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int] = (640, 480),
+                   seed: int = 0) -> Scenario:
+    """Build scenario ``name`` (one of `SCENARIOS`) with ``n_frames`` frames (default per
+    `DEFAULT_FRAMES`) of ``size = (width, height)`` pixels from ``seed``.
+
+    Raises
+    ------
+    PldSlamError
+        For an unknown name, a non-positive size, or fewer than `MIN_LOOP_FRAMES` frames
+        for ``loop``.
+    """
+    frames = check_request(name, n_frames, size)
+    camera = make_camera((int(size[0]), int(size[1])))
+    times = np.arange(frames) / FRAME_RATE
+    if name == "loop":
+        path = loop_path()
+        s = path.length * ((np.arange(frames) / (frames - 1)) % 1.0)
+        poses = camera_poses(path, s, period=path.length)
+        palette = textured_palette(seed)
+        static = street(path, 0.0, path.length, seed, palette)
+        movers: tuple[MovingObject, ...] = ()
+    else:
+        s = STREET_STEP * np.arange(frames)
+        s_end = s[-1] + VIEW_AHEAD
+        path = street_path(seed, -30.0, s_end + 10.0)
+        poses = camera_poses(path, s, period=120.0)
+        palette = plain_palette() if name == "lowtexture" else textured_palette(seed)
+        static = street(path, -25.0, s_end, seed, palette)
+        movers = traffic(path, s, times, s_end, seed, palette) if name == "dynamic" else ()
+    scene = Scene(static=static, moving=movers, atlas=tx.TextureAtlas.build(palette.textures), light=SUN)
+    return Scenario(name=name, seed=seed, camera=camera, poses=poses, timestamps=times, scene=scene)

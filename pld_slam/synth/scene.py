@@ -1,0 +1,299 @@
+"""The synthetic scene: textured rectangles ("quads"), the objects built from them, movers.
+
+Every surface is a planar rectangle: an ``origin`` corner and two orthogonal edge vectors
+``a`` and ``b``. A quad is seen from one side only, the side from which ``a`` points right
+and ``b`` points down (like an image), so its outward normal is ``b x a``; boxes are built
+with their normals outwards, floors with theirs up. A surface point ``origin + x a/|a| +
+y b/|b|`` (``x``, ``y`` in metres) shows texture coordinate ``(x, y) + tex_offset``.
+
+Frames follow the camera convention (y down): the world is the first left camera, the
+ground is the plane ``y = scenarios.CAMERA_HEIGHT``; an object frame has x right, y down, z forward
+and its origin on the ground at the middle of the object's footprint (for a building: of
+its facade's foot, with z pointing into the building). ``T_w_o`` places an object.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from pld_slam.geometry.se3 import make_pose, so3_exp, transform_points
+from pld_slam.synth.textures import TextureAtlas
+
+DOWN = np.array([0.0, 1.0, 0.0])
+"""Gravity direction in the world and object frames (y down)."""
+UP = -DOWN
+
+STATIC_OBJECT = 0
+"""Object id of every quad that never moves; moving objects are numbered from 1."""
+
+
+@dataclass(frozen=True)
+class Quads:
+    """A set of Q textured rectangles (structure of arrays).
+
+    Attributes
+    ----------
+    origin : np.ndarray
+        (Q, 3) corner where the texture starts [m].
+    edge_a, edge_b : np.ndarray
+        (Q, 3) orthogonal edges [m]: texture columns run along ``a``, rows along ``b``.
+    material : np.ndarray
+        (Q,) int32 index of the texture in the scene's atlas.
+    albedo : np.ndarray
+        (Q,) float32 factor on the texture (paint colour of a car, shade of a wall panel).
+    tex_offset : np.ndarray
+        (Q, 2) texture coordinate [m] at the origin along ``a`` and ``b``.
+    object_id : np.ndarray
+        (Q,) int32: `STATIC_OBJECT` or the id of the moving object the quad belongs to.
+    """
+
+    origin: np.ndarray
+    edge_a: np.ndarray
+    edge_b: np.ndarray
+    material: np.ndarray
+    albedo: np.ndarray
+    tex_offset: np.ndarray
+    object_id: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.material)
+
+    def transformed(self, T_a_b: np.ndarray) -> "Quads":
+        """The quads moved from frame b into frame a by the pose ``T_a_b`` (4, 4)."""
+        R = T_a_b[:3, :3]
+        return replace(
+            self,
+            origin=transform_points(T_a_b, self.origin),
+            edge_a=self.edge_a @ R.T,
+            edge_b=self.edge_b @ R.T,
+        )
+
+    def with_object_id(self, object_id: int) -> "Quads":
+        """The same quads, all belonging to object ``object_id``."""
+        return replace(self, object_id=np.full(len(self), object_id, dtype=np.int32))
+
+    def normals(self) -> np.ndarray:
+        """Outward unit normals (Q, 3): ``b x a`` normalised (the visible side)."""
+        n = np.cross(self.edge_b, self.edge_a)
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    def corners(self) -> np.ndarray:
+        """Corners (Q, 4, 3) in order origin, +a, +a+b, +b."""
+        o, a, b = self.origin, self.edge_a, self.edge_b
+        return np.stack([o, o + a, o + a + b, o + b], axis=1)
+
+    @staticmethod
+    def concat(parts: Sequence["Quads"]) -> "Quads":
+        """All quads of ``parts`` in order, as one set."""
+        return Quads(*(np.concatenate([getattr(p, name) for p in parts])
+                       for name in Quads.__dataclass_fields__))
+
+
+def rectangle(origin, edge_a, edge_b, material, albedo=1.0, tex_offset=(0.0, 0.0)) -> Quads:
+    """Static quads from origin corners and edges, each (3,) or (n, 3) [m]; ``material``,
+    ``albedo`` (scalars or (n,)) and ``tex_offset`` ((2,) or (n, 2)) broadcast."""
+    origin = np.asarray(origin, dtype=np.float64).reshape(-1, 3)
+    edge_a = np.broadcast_to(np.asarray(edge_a, dtype=np.float64).reshape(-1, 3), origin.shape)
+    edge_b = np.broadcast_to(np.asarray(edge_b, dtype=np.float64).reshape(-1, 3), origin.shape)
+    n = len(origin)
+    return Quads(
+        origin=origin,
+        edge_a=np.array(edge_a),
+        edge_b=np.array(edge_b),
+        material=np.broadcast_to(np.asarray(material, dtype=np.int32), (n,)).copy(),
+        albedo=np.broadcast_to(np.asarray(albedo, dtype=np.float32), (n,)).copy(),
+        tex_offset=np.broadcast_to(np.asarray(tex_offset, dtype=np.float64).reshape(-1, 2), (n, 2)).copy(),
+        object_id=np.full(n, STATIC_OBJECT, dtype=np.int32),
+    )
+
+
+def wall(bottom_centre, normal, width, height, material, albedo=1.0, tex_offset=(0.0, 0.0)) -> Quads:
+    """Vertical quads ``width`` x ``height`` [m] standing on ``bottom_centre`` and facing the
+    horizontal unit ``normal`` ((3,) or (n, 3); sizes scalar or (n,)); the texture starts
+    at the top left corner as seen from the front."""
+    normal = np.asarray(normal, dtype=np.float64)
+    width = np.asarray(width, dtype=np.float64)[..., None]
+    height = np.asarray(height, dtype=np.float64)[..., None]
+    a_dir = np.cross(normal, DOWN)
+    origin = np.asarray(bottom_centre) - 0.5 * width * a_dir + height * UP
+    return rectangle(origin, width * a_dir, height * DOWN, material, albedo, tex_offset)
+
+
+def floor(centre, forward, width, length, material, albedo=1.0, tex_offset=(0.0, 0.0)) -> Quads:
+    """Horizontal quads facing up, ``width`` across and ``length`` [m] along the horizontal
+    unit ``forward``, centred on ``centre`` ((3,) or (n, 3); sizes scalar or (n,)). Texture
+    columns run to the right and rows backwards, from the front left corner."""
+    forward = np.asarray(forward, dtype=np.float64)
+    width = np.asarray(width, dtype=np.float64)[..., None]
+    length = np.asarray(length, dtype=np.float64)[..., None]
+    right = np.cross(DOWN, forward)
+    origin = np.asarray(centre) - 0.5 * width * right + 0.5 * length * forward
+    return rectangle(origin, width * right, -length * forward, material, albedo, tex_offset)
+
+
+@dataclass(frozen=True)
+class BoxMaterials:
+    """Materials of a box's faces: ``side`` (normal +-x), ``end`` (+-z) and ``top``."""
+
+    side: int
+    end: int
+    top: int
+
+
+def box(width: float, height: float, length: float, materials: BoxMaterials,
+        albedo: float = 1.0) -> Quads:
+    """A closed box (5 quads, no bottom) in its object frame: ``width`` along x, ``height``
+    up, ``length`` along z [m], standing on the origin. Each face's texture starts at its
+    top left corner, so a texture of the face's size covers it exactly once."""
+    x, z = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    return Quads.concat([
+        wall(0.5 * width * x, x, length, height, materials.side, albedo),
+        wall(-0.5 * width * x, -x, length, height, materials.side, albedo),
+        wall(0.5 * length * z, z, width, height, materials.end, albedo),
+        wall(-0.5 * length * z, -z, width, height, materials.end, albedo),
+        floor(height * UP, z, width, length, materials.top, albedo),
+    ])
+
+
+def translation(x: float, y: float, z: float) -> np.ndarray:
+    """Pose (4, 4) that shifts by ``(x, y, z)`` [m] without rotating."""
+    return make_pose(np.eye(3), np.array([x, y, z]))
+
+
+def yaw_pose(position, yaw: float) -> np.ndarray:
+    """Pose ``T_w_o`` (4, 4) of an upright object at ``position`` (3,) turned by ``yaw``
+    [rad] about the down axis (positive turns z towards x, i.e. to the right)."""
+    return make_pose(so3_exp(np.array([0.0, yaw, 0.0])), np.asarray(position, dtype=np.float64))
+
+
+# --- building blocks ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FacadeMaterials:
+    """Materials of a building: ``upper`` storeys, ``ground`` floor (shops), ``side`` walls."""
+
+    upper: int
+    ground: int
+    side: int
+
+
+GROUND_FLOOR_HEIGHT = 4.0
+"""Height [m] of a building's ground floor (the shopfront texture is 4 m tall)."""
+
+
+def building(width: float, depth: float, height: float, materials: FacadeMaterials,
+             tex_shift: float, albedo: float = 1.0) -> Quads:
+    """A building in its object frame: the facade ``width`` [m] wide at z = 0 facing -z,
+    the body ``depth`` deep along +z, ``height`` tall. The facade is a ground floor and
+    the upper storeys, whose texture is shifted by ``tex_shift`` [m] along the street and
+    whose storeys start at the top edge (so ``height - GROUND_FLOOR_HEIGHT`` should be a
+    multiple of the storey height). Sides are plain walls; roof and back are never seen."""
+    x, z = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    upper = height - GROUND_FLOOR_HEIGHT
+    return Quads.concat([
+        wall(GROUND_FLOOR_HEIGHT * UP, -z, width, upper, materials.upper, albedo, (tex_shift, 0.0)),
+        wall(np.zeros(3), -z, width, GROUND_FLOOR_HEIGHT, materials.ground, albedo, (tex_shift, 0.0)),
+        wall(0.5 * width * x + 0.5 * depth * z, x, depth, height, materials.side, albedo),
+        wall(-0.5 * width * x + 0.5 * depth * z, -x, depth, height, materials.side, albedo),
+    ])
+
+
+def pole(height: float, arm_length: float, metal: int, sign_material: int | None) -> Quads:
+    """A street-light pole in its object frame: a 14 cm square mast of ``height`` [m] at the
+    origin, an arm of ``arm_length`` [m] at the top towards -x (the road), and optionally a
+    0.6 m sign facing -z (oncoming traffic) at 2.3 m."""
+    metal_box = BoxMaterials(metal, metal, metal)
+    parts = [
+        box(0.14, height, 0.14, metal_box),
+        box(arm_length, 0.12, 0.12, metal_box).transformed(
+            translation(-0.5 * arm_length, -height + 0.3, 0.0)),
+        box(0.5, 0.12, 0.3, metal_box).transformed(translation(-arm_length, -height + 0.18, 0.0)),
+    ]
+    if sign_material is not None:
+        plate = BoxMaterials(metal, sign_material, metal)
+        parts.append(box(0.6, 0.6, 0.04, plate).transformed(translation(0.0, -2.3, -0.1)))
+    return Quads.concat(parts)
+
+
+STOREY_BAND_SPACING = 3.0
+"""Height [m] between the flat bands that mark the storeys of a plain building."""
+
+
+def plain_building(width: float, depth: float, height: float, flat: int,
+                   panel_shades: np.ndarray, door_at: Sequence[float], door_shade: float,
+                   band_shade: float) -> Quads:
+    """A low-texture building in its object frame (facade at z = 0 facing -z): a wall of
+    uniform panels of ``panel_shades`` (K,) albedos side by side, a skirting band, a band of
+    ``band_shade`` at every storey, a pillar between neighbouring panels, and framed doors
+    centred at ``door_at`` [m from the facade centre]. Everything uses the ``flat``
+    material; edges carry all the structure."""
+    x, z = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    plain = BoxMaterials(flat, flat, flat)
+    panel_w = width / len(panel_shades)
+    parts = []
+    for k, panel_shade in enumerate(panel_shades):
+        centre = -0.5 * width + (k + 0.5) * panel_w
+        parts.append(wall(centre * x, -z, panel_w, height, flat, float(panel_shade)))
+        if k > 0:
+            parts.append(box(0.4, height, 0.3, plain, 0.8).transformed(
+                translation(centre - 0.5 * panel_w, 0.0, -0.15)))
+    parts.append(box(width, 0.4, 0.06, plain, 0.45).transformed(translation(0.0, 0.0, -0.03)))
+    for storey in np.arange(STOREY_BAND_SPACING, height, STOREY_BAND_SPACING):
+        parts.append(wall(np.array([0.0, -(storey - 0.1), -0.02]), -z, width, 0.2, flat, band_shade))
+    for centre in door_at:
+        parts.append(wall(np.array([centre, 0.0, -0.02]), -z, 1.2, 2.3, flat, door_shade))
+        for jamb in (-0.68, 0.68):
+            parts.append(box(0.16, 2.45, 0.08, plain, 0.95).transformed(translation(centre + jamb, 0.0, -0.04)))
+        parts.append(box(1.52, 0.16, 0.08, plain, 0.95).transformed(translation(centre, -2.3, -0.04)))
+    side_shade = 0.9 * float(panel_shades[0])
+    parts.append(wall(0.5 * width * x + 0.5 * depth * z, x, depth, height, flat, side_shade))
+    parts.append(wall(-0.5 * width * x + 0.5 * depth * z, -x, depth, height, flat, side_shade))
+    return Quads.concat(parts)
+
+
+# --- moving objects and the scene ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MovingObject:
+    """A rigid object that moves: its quads in its own frame and its pose at every frame.
+
+    Attributes
+    ----------
+    quads : Quads
+        Quads in the object frame, all with this object's id (>= 1).
+    poses : np.ndarray
+        (N, 4, 4) ``T_w_o`` at each frame of the sequence.
+    """
+
+    quads: Quads
+    poses: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything the renderer needs: static quads, movers, textures, the light.
+
+    Attributes
+    ----------
+    static : Quads
+        Quads fixed in the world frame (object id `STATIC_OBJECT`).
+    moving : tuple of MovingObject
+        Objects whose pose changes per frame.
+    atlas : TextureAtlas
+        Textures indexed by ``Quads.material``.
+    light : np.ndarray
+        (3,) unit vector in the world frame pointing towards the sun.
+    """
+
+    static: Quads
+    moving: tuple[MovingObject, ...]
+    atlas: TextureAtlas
+    light: np.ndarray
+
+    def quads_at(self, frame: int) -> Quads:
+        """All quads in the world frame at ``frame``: the static ones, then each mover's."""
+        movers = [obj.quads.transformed(obj.poses[frame]) for obj in self.moving]
+        return Quads.concat([self.static, *movers])

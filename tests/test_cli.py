@@ -1,0 +1,146 @@
+"""The ``pld-slam`` commands: output, JSON keys, exit codes and one-line errors."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from conftest import require
+
+from pld_slam.datasets import open_sequence
+from pld_slam.geometry.se3 import make_pose
+from pld_slam.io.trajectory import read_kitti, write_kitti, write_tum
+from pld_slam.trajectory import Trajectory
+from pld_slam_cli.main import EXIT_USER_ERROR, cli
+
+JSON_KEYS = {"ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched"}
+
+
+def run(*args: str):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def synthetic_sequence(tmp_path_factory):
+    """A small dynamic sequence written by ``pld-slam synth``."""
+    out = tmp_path_factory.mktemp("synth") / "seq"
+    result = run("synth", out, "--scenario", "dynamic", "--frames", 6, "--size", "160x120", "--seed", 3)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_synth_writes_a_sequence_the_loader_reads_with_ground_truth_and_masks(synthetic_sequence):
+    sequence = open_sequence(synthetic_sequence)
+    assert sequence.layout == "kitti_odometry"
+    assert len(sequence) == 6
+    assert (sequence.camera.width, sequence.camera.height) == (160, 120)
+    assert sequence.camera.baseline == pytest.approx(0.5)
+    assert sequence.groundtruth is not None and len(sequence.groundtruth) == 6
+    assert np.allclose(sequence.groundtruth.poses[0], np.eye(4))
+    assert sequence.groundtruth.path_length() > 1.0
+    masks = [sequence.dynamic_mask(i) for i in range(len(sequence))]
+    assert all(0.0 < mask.mean() < 0.6 for mask in masks)
+    frame = sequence[5]
+    assert frame.left.shape == (120, 160) and frame.left.dtype == np.uint8
+
+
+def test_synth_rejects_a_bad_size_as_a_usage_error(tmp_path):
+    result = run("synth", tmp_path / "x", "--size", "640by480")
+    assert result.exit_code == 2
+    assert "WIDTHxHEIGHT" in result.output
+
+
+def test_eval_prints_the_table_and_json_with_the_documented_keys(synthetic_sequence, tmp_path):
+    truth = read_kitti(synthetic_sequence / "poses.txt")
+    shifted = truth.poses.copy()
+    shifted[:, 0, 3] += 0.1 * np.arange(len(truth))  # drifts sideways
+    estimate = tmp_path / "estimate.kitti.txt"
+    write_kitti(estimate, Trajectory(truth.timestamps, shifted))
+
+    table = run("eval", synthetic_sequence / "poses.txt", estimate)
+    assert table.exit_code == 0, table.output
+    assert "ATE RMSE" in table.output and "n/a (path < 100 m)" in table.output
+
+    result = run("eval", synthetic_sequence / "poses.txt", estimate, "--json")
+    values = json.loads(result.output)
+    assert set(values) == JSON_KEYS
+    assert values["n_matched"] == len(truth)
+    assert values["ate_rmse_m"] > 0.01
+    assert values["t_rel_pct"] is None and values["r_rel_deg_per_100m"] is None
+
+
+def test_eval_against_a_sequence_folder_stamps_a_kitti_estimate_with_frame_times(synthetic_sequence, tmp_path):
+    truth = read_kitti(synthetic_sequence / "poses.txt")
+    estimate = tmp_path / "first_four.kitti.txt"
+    write_kitti(estimate, truth.head(4))  # a run stopped early
+    values = json.loads(run("eval", synthetic_sequence, estimate, "--json").output)
+    assert values["n_matched"] == 4
+    assert values["ate_rmse_m"] < 1e-6
+
+
+def test_eval_writes_plots(synthetic_sequence, tmp_path):
+    result = run("eval", synthetic_sequence / "poses.txt", synthetic_sequence / "poses.txt", "--plot", tmp_path / "plots")
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "plots" / "trajectory_top_view.png").stat().st_size > 1000
+    assert (tmp_path / "plots" / "ate_over_time.png").stat().st_size > 1000
+
+
+def test_kitti_and_tum_files_cannot_be_paired(tmp_path):
+    poses = np.stack([make_pose(np.eye(3), [0.0, 0.0, float(i)]) for i in range(5)])
+    write_kitti(tmp_path / "a.txt", Trajectory(np.arange(5.0), poses))
+    write_tum(tmp_path / "b.txt", Trajectory(np.arange(5.0), poses))
+    result = run("eval", tmp_path / "a.txt", tmp_path / "b.txt")
+    assert result.exit_code == EXIT_USER_ERROR
+    assert result.output.startswith("error: cannot pair") and result.output.count("\n") == 1
+
+
+def test_library_errors_are_one_line_with_exit_code_2_and_verbose_shows_the_traceback(tmp_path):
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1 2 3\n")
+    result = run("eval", bad, bad)
+    assert result.exit_code == EXIT_USER_ERROR
+    assert result.output.startswith(f"error: {bad}") and result.output.count("\n") == 1
+    verbose = CliRunner().invoke(cli, ["--verbose", "eval", str(bad), str(bad)])
+    assert verbose.exit_code != 0
+    assert verbose.exception is not None and "bad.txt" in str(verbose.exception)
+
+
+def test_eval_against_kitti_raw_uses_its_oxts_ground_truth(tmp_path, data_dir):
+    folder = require(data_dir / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0005_sync")
+    truth = open_sequence(folder).groundtruth
+    estimate = tmp_path / "est.txt"
+    write_kitti(estimate, truth.head(10))
+    values = json.loads(run("eval", folder, estimate, "--json").output)
+    assert values["n_matched"] == 10
+    assert values["ate_rmse_m"] < 1e-6
+
+
+def test_eval_of_a_folder_without_ground_truth_says_so(synthetic_sequence, tmp_path):
+    folder = tmp_path / "no_truth"
+    shutil.copytree(synthetic_sequence, folder)
+    (folder / "poses.txt").unlink()
+    result = run("eval", folder, synthetic_sequence / "poses.txt")
+    assert result.exit_code == EXIT_USER_ERROR
+    assert result.output == f"error: {folder}: this sequence has no ground truth\n"
+
+
+def test_config_prints_the_effective_configuration(tmp_path):
+    override = tmp_path / "mine.yaml"
+    override.write_text("dynamic:\n  grid: false\n")
+    result = run("config", "--config", override, "--set", "loop.detector=bow")
+    assert result.exit_code == 0, result.output
+    printed = yaml.safe_load(result.output)
+    assert printed["dynamic"]["grid"] is False
+    assert printed["loop"]["detector"] == "bow"
+    assert printed["filters"]["point_grid_alpha"] == 1.5
+
+
+def test_config_error_names_the_key():
+    result = run("config", "--set", "filters.point_grid_alpfa=2")
+    assert result.exit_code == EXIT_USER_ERROR
+    assert result.output == (
+        "error: --set filters.point_grid_alpfa=2: unknown key filters.point_grid_alpfa (known: line_llg, "
+        "line_llg_factor, point_grid, point_grid_alpha, point_grid_cols, point_grid_rows)\n"
+    )

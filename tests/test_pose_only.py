@@ -1,0 +1,240 @@
+"""Pose-only least squares on synthetic scenes: accuracy, outliers, line switches, failures."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from finite_differences import CAMERA, random_points_in_view, random_pose
+
+from pld_slam.geometry.se3 import inverse, se3_exp, so3_log, transform_points
+from pld_slam.optim.line_reprojection import detected_line_directions
+from pld_slam.optim.pose_only import (
+    LineObservations,
+    PointObservations,
+    PoseOnlyOptions,
+    PoseOnlyStatus,
+    _PoseProblem,
+    optimize_pose,
+    optimize_pose_rejecting_outliers,
+)
+
+INITIAL_ERROR = np.array([0.15, -0.05, 0.2, 0.02, -0.03, 0.015])  # ~2 degrees and 25 cm
+
+
+def observe_points(rng: np.random.Generator, T_c_w: np.ndarray, n: int, noise_px: float) -> PointObservations:
+    """Stereo observations of n world points in view: noise of std ``noise_px``, declared sigma 1 px."""
+    points_w = random_points_in_view(rng, T_c_w, n)
+    stereo_px = CAMERA.project_stereo(transform_points(T_c_w, points_w)) + rng.normal(0.0, noise_px, (n, 3))
+    return PointObservations(points_w, stereo_px, np.ones(n))
+
+
+def random_segments_in_view(
+    rng: np.random.Generator, T_c_w: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """World endpoints (n, 3) x 2 of 1-4 m segments with random directions, both ends in front."""
+    start_c = rng.uniform([-6.0, -2.0, 5.0], [6.0, 2.0, 30.0], size=(n, 3))
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    end_c = start_c + rng.uniform(1.0, 4.0, (n, 1)) * direction
+    end_c[:, 2] = np.maximum(end_c[:, 2], 3.0)
+    T_w_c = inverse(T_c_w)
+    return transform_points(T_w_c, start_c), transform_points(T_w_c, end_c)
+
+
+def observe_segments(
+    rng: np.random.Generator, T_c_w: np.ndarray, start_w: np.ndarray, end_w: np.ndarray, noise_px: float
+) -> LineObservations:
+    """Detected endpoints = projected endpoints plus Gaussian noise; all eligible for the horizontal term."""
+    n = len(start_w)
+    start_px = CAMERA.project(transform_points(T_c_w, start_w)) + rng.normal(0.0, noise_px, (n, 2))
+    end_px = CAMERA.project(transform_points(T_c_w, end_w)) + rng.normal(0.0, noise_px, (n, 2))
+    return LineObservations(start_w, end_w, start_px, end_px, np.ones(n), np.ones(n, dtype=bool))
+
+
+def observe_lines(rng: np.random.Generator, T_c_w: np.ndarray, n: int, noise_px: float) -> LineObservations:
+    """Observations of n random segments in view."""
+    return observe_segments(rng, T_c_w, *random_segments_in_view(rng, T_c_w, n), noise_px)
+
+
+def slide_endpoints_along(lines: LineObservations, rows: np.ndarray, slide_px: float) -> LineObservations:
+    """The observations with the detected endpoints of ``rows`` slid ``slide_px`` outwards along the line."""
+    direction = detected_line_directions(lines.start_px, lines.end_px)
+    start_px, end_px = lines.start_px.copy(), lines.end_px.copy()
+    start_px[rows] -= slide_px * direction[rows]
+    end_px[rows] += slide_px * direction[rows]
+    return dataclasses.replace(lines, start_px=start_px, end_px=end_px)
+
+
+def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
+    """Camera-centre distance [m] and rotation angle [rad] of ``T_est`` relative to ``T_true``."""
+    T_diff = T_est @ inverse(T_true)
+    return float(np.linalg.norm(inverse(T_diff)[:3, 3])), float(np.linalg.norm(so3_log(T_diff[:3, :3])))
+
+
+def perturbed(T_c_w: np.ndarray) -> np.ndarray:
+    """The initial guess: ``T_c_w`` moved by `INITIAL_ERROR`."""
+    return se3_exp(INITIAL_ERROR) @ T_c_w
+
+
+def test_solver_jacobian_matches_central_differences_away_from_the_initial_pose():
+    rng = np.random.default_rng(5)
+    T_true = random_pose(rng)
+    points, lines = observe_points(rng, T_true, 20, 1.0), observe_lines(rng, T_true, 10, 1.0)
+    problem = _PoseProblem(CAMERA, perturbed(T_true), points, lines, lines, min_depth=1e-3)
+    x, h = rng.normal(0.0, 0.05, 6), 1e-6
+    numeric = np.column_stack(
+        [
+            (problem.residuals(x + h * axis) - problem.residuals(x - h * axis)) / (2.0 * h)
+            for axis in np.eye(6)
+        ]
+    )
+    assert np.allclose(numeric, problem.jacobian(x), rtol=0.0, atol=1e-6 * np.abs(numeric).max())
+
+
+def test_chi2_is_the_squared_residual_norm_over_sigma_squared():
+    rng = np.random.default_rng(6)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 30, 0.0)
+    stereo_px = points.stereo_px.copy()
+    stereo_px[:5] += [6.0, -8.0, 6.0]  # 10 px off in the image, the disparity kept
+    points = dataclasses.replace(points, stereo_px=stereo_px, sigma_px=np.full(30, 2.0))
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points)
+    assert np.allclose(result.point_chi2[:5], (36.0 + 64.0 + 36.0) / 4.0)
+    assert np.allclose(result.point_chi2[5:], 0.0, atol=1e-12)
+    assert result.inliers.points.tolist() == [False] * 5 + [True] * 25
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noise_free_points_give_the_exact_pose(seed):
+    rng = np.random.default_rng(seed)
+    T_true = random_pose(rng)
+    result = optimize_pose(CAMERA, perturbed(T_true), observe_points(rng, T_true, 50, noise_px=0.0))
+    assert result.status is PoseOnlyStatus.CONVERGED and result.success
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert translation < 1e-8 and rotation < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noisy_points_recover_the_pose(seed):
+    rng = np.random.default_rng(seed)
+    T_true = random_pose(rng)
+    result = optimize_pose(CAMERA, perturbed(T_true), observe_points(rng, T_true, 200, noise_px=1.0))
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert result.success and translation < 0.02 and rotation < np.radians(0.05)
+    assert np.mean(result.inliers.points) > 0.85
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noisy_points_and_lines_recover_the_pose(seed):
+    rng = np.random.default_rng(seed)
+    T_true = random_pose(rng)
+    points, lines = observe_points(rng, T_true, 100, 1.0), observe_lines(rng, T_true, 60, 1.0)
+    result = optimize_pose(CAMERA, perturbed(T_true), points, lines)
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert result.success and translation < 0.02 and rotation < np.radians(0.05)
+    assert np.mean(result.inliers.lines) > 0.85 and np.mean(result.inliers.line_horizontal) > 0.75
+
+
+@pytest.mark.parametrize("use_horizontal", [False, True])
+@pytest.mark.parametrize("seed", range(3))
+def test_lines_alone_recover_the_pose(seed, use_horizontal):
+    rng = np.random.default_rng(seed)
+    T_true = random_pose(rng)
+    options = PoseOnlyOptions(use_line_horizontal=use_horizontal)
+    result = optimize_pose(
+        CAMERA, perturbed(T_true), lines=observe_lines(rng, T_true, 80, 1.0), options=options
+    )
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert result.success and translation < 0.03 and rotation < np.radians(0.1)
+    assert np.any(result.inliers.line_horizontal) == use_horizontal
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rejection_rounds_flag_twenty_percent_gross_outliers(seed):
+    rng = np.random.default_rng(seed)
+    T_true = random_pose(rng)
+    points, lines = observe_points(rng, T_true, 150, 1.0), observe_lines(rng, T_true, 60, 1.0)
+    point_outliers = rng.permutation(150)[:30]
+    shifted_px = points.stereo_px.copy()
+    shifted_px[point_outliers] += rng.choice([-1.0, 1.0], (30, 3)) * rng.uniform(15.0, 60.0, (30, 3))
+    line_outliers = rng.permutation(60)[:12]
+    direction = detected_line_directions(lines.start_px, lines.end_px)[line_outliers]
+    offset = (
+        rng.choice([-1.0, 1.0], (12, 1)) * rng.uniform(20.0, 60.0, (12, 1)) * direction[:, ::-1] * [-1.0, 1.0]
+    )
+    moved_start, moved_end = lines.start_px.copy(), lines.end_px.copy()
+    moved_start[line_outliers] += offset  # across the line: an outlier of the vertical error
+    moved_end[line_outliers] += offset
+    points = dataclasses.replace(points, stereo_px=shifted_px)
+    lines = dataclasses.replace(lines, start_px=moved_start, end_px=moved_end)
+
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points, lines)
+
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert result.success and translation < 0.03 and rotation < np.radians(0.1)
+    assert not np.any(result.inliers.points[point_outliers])
+    assert not np.any(result.inliers.lines[line_outliers])
+    assert np.mean(np.delete(result.inliers.points, point_outliers)) > 0.85
+    assert np.mean(np.delete(result.inliers.lines, line_outliers)) > 0.85
+
+
+def test_a_line_with_bad_endpoints_keeps_its_vertical_term_and_loses_the_horizontal():
+    rng = np.random.default_rng(11)
+    T_true = random_pose(rng)
+    points, lines = observe_points(rng, T_true, 100, 1.0), observe_lines(rng, T_true, 40, 1.0)
+    cut = np.arange(8)
+    lines = slide_endpoints_along(lines, cut, slide_px=30.0)
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points, lines)
+    assert result.success
+    assert np.all(result.inliers.lines[cut]) and not np.any(result.inliers.line_horizontal[cut])
+
+
+def test_switching_the_horizontal_term_off_ignores_endpoints_along_the_line():
+    rng = np.random.default_rng(12)
+    T_true = random_pose(rng)
+    lines = slide_endpoints_along(observe_lines(rng, T_true, 60, 0.0), np.arange(60), slide_px=25.0)
+    result = optimize_pose(
+        CAMERA, perturbed(T_true), lines=lines, options=PoseOnlyOptions(use_line_horizontal=False)
+    )
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert result.success and translation < 1e-7 and rotation < 1e-8
+
+
+def test_too_few_observations_fail_and_return_the_initial_pose():
+    rng = np.random.default_rng(13)
+    T_true = random_pose(rng)
+    T_init = perturbed(T_true)
+    for points, lines in (
+        (observe_points(rng, T_true, 3, 1.0), None),
+        (None, None),
+        (None, observe_lines(rng, T_true, 2, 1.0)),
+    ):
+        result = optimize_pose_rejecting_outliers(CAMERA, T_init, points, lines)
+        assert result.status is PoseOnlyStatus.TOO_FEW_OBSERVATIONS and not result.success
+        assert np.array_equal(result.T_c_w, T_init) and result.nfev == 0
+
+
+def test_points_behind_the_camera_do_not_count_towards_the_minimum():
+    rng = np.random.default_rng(14)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 6, 1.0)
+    behind = transform_points(
+        inverse(T_true), transform_points(T_true, points.points_w[:3]) * [1.0, 1.0, -1.0]
+    )
+    points = dataclasses.replace(points, points_w=np.vstack([behind, points.points_w[3:]]))
+    result = optimize_pose(CAMERA, T_true, points)
+    assert result.status is PoseOnlyStatus.TOO_FEW_OBSERVATIONS
+    assert np.all(np.isinf(result.point_chi2[:3])) and not np.any(result.inliers.points[:3])
+
+
+def test_points_on_one_3d_line_are_degenerate():
+    rng = np.random.default_rng(15)
+    T_true = random_pose(rng)
+    along = rng.uniform(0.0, 10.0, (20, 1))
+    on_line_c = np.array([[-3.0, 1.0, 6.0]]) + along * np.array([[0.6, -0.1, 0.8]])
+    points = PointObservations(
+        transform_points(inverse(T_true), on_line_c), CAMERA.project_stereo(on_line_c), np.ones(20)
+    )
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points)
+    assert result.status is PoseOnlyStatus.DEGENERATE and not result.success
+    assert np.array_equal(result.T_c_w, perturbed(T_true))

@@ -1,0 +1,249 @@
+"""The synthetic stereo world: geometry, determinism, masks, scenarios and the writer."""
+
+import json
+from functools import cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pld_slam.errors import PldSlamError
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import make_pose, so3_exp
+from pld_slam.synth import SCENARIOS, build_scenario, write_sequence
+from pld_slam.synth.render import render_view
+from pld_slam.synth.scene import STATIC_OBJECT, Quads, Scene, floor, wall
+from pld_slam.synth.textures import TextureAtlas, flat
+
+SMALL = (320, 240)
+TINY = (160, 120)
+
+
+@cache
+def scenario(name: str, size=SMALL, n_frames: int | None = 12, seed: int = 0):
+    return build_scenario(name, n_frames, size, seed)
+
+
+def one_surface_scene(quads: Quads) -> Scene:
+    return Scene(static=quads, moving=(), atlas=TextureAtlas.build([flat()]), light=np.array([0.0, -1.0, 0.0]))
+
+
+CAMERA = StereoCamera(fx=192.0, fy=192.0, cx=160.0, cy=120.0, baseline=0.5, width=320, height=240)
+
+
+# --- the ray caster --------------------------------------------------------------------------
+
+
+def test_fronto_parallel_wall_has_its_depth_and_projected_outline():
+    quads = wall(np.array([0.0, 1.0, 5.0]), np.array([0.0, 0.0, -1.0]), 2.0, 2.0, 0)
+    view = render_view(one_surface_scene(quads), quads, CAMERA, np.eye(4))
+    covered = view.quad_id == 0
+    np.testing.assert_allclose(view.inv_depth[covered], 0.2, rtol=1e-6)
+    u, v = np.meshgrid(np.arange(CAMERA.width), np.arange(CAMERA.height))
+    half = CAMERA.fx * 1.0 / 5.0
+    inside = (np.abs(u - CAMERA.cx) < half - 1e-3) & (np.abs(v - CAMERA.cy) < half - 1e-3)
+    outside = (np.abs(u - CAMERA.cx) > half + 1e-3) | (np.abs(v - CAMERA.cy) > half + 1e-3)
+    assert covered[inside].all()
+    assert not covered[outside].any()
+    assert (view.inv_depth[~covered] == 0.0).all() and (view.quad_id[~covered] == -1).all()
+
+
+def test_ground_plane_depth_matches_the_analytic_plane_for_a_turned_camera():
+    quads = floor(np.array([0.0, 1.6, 0.0]), np.array([0.0, 0.0, 1.0]), 400.0, 400.0, 0)
+    T_w_c = make_pose(so3_exp(np.array([0.0, 0.7, 0.0])), np.array([3.0, 0.0, -2.0]))
+    view = render_view(one_surface_scene(quads), quads, CAMERA, T_w_c)
+    rows = np.arange(CAMERA.height)[:, None] * np.ones((1, CAMERA.width))
+    expected = (rows - CAMERA.cy) / (CAMERA.fy * 1.6)
+    covered = view.quad_id == 0
+    assert covered[rows > CAMERA.cy + 1].all()
+    assert not covered[rows <= CAMERA.cy].any()
+    np.testing.assert_allclose(view.inv_depth[covered], expected[covered], rtol=1e-4, atol=1e-6)
+
+
+def test_stereo_views_agree_on_surface_identity_depth_and_brightness():
+    world = scenario("static")
+    left, right = world.render_views(6)
+    camera = world.camera
+    v, u = np.nonzero(left.quad_id >= 0)
+    u_right = u - camera.bf * left.inv_depth[v, u]
+    on_image = (u_right >= 1) & (u_right <= camera.width - 2)
+    v, u, u_right = v[on_image], u[on_image], u_right[on_image]
+    col0 = np.floor(u_right).astype(int)
+    frac = u_right - col0
+    left_quad = left.quad_id[v, u]
+    same_quad = (right.quad_id[v, col0] == left_quad) & (right.quad_id[v, col0 + 1] == left_quad)
+    assert same_quad.mean() > 0.9  # the rest: occlusions and outline pixels
+    right_inv_depth = (1.0 - frac) * right.inv_depth[v, col0] + frac * right.inv_depth[v, col0 + 1]
+    np.testing.assert_allclose(right_inv_depth[same_quad], left.inv_depth[v, u][same_quad], rtol=1e-4)
+    warped = (1.0 - frac) * right.radiance[v, col0] + frac * right.radiance[v, col0 + 1]
+    matched = np.abs(warped - left.radiance[v, u])[same_quad]
+    unshifted = np.abs(right.radiance[v, u] - left.radiance[v, u])[same_quad]
+    assert np.median(matched) < 2.0
+    assert np.median(unshifted) > 3.0 * np.median(matched)
+
+
+def test_first_pose_is_identity_and_the_camera_rides_at_the_right_speed():
+    world = scenario("static", n_frames=40)
+    np.testing.assert_array_equal(world.poses[0], np.eye(4))
+    steps = np.linalg.norm(np.diff(world.poses[:, :3, 3], axis=0), axis=1)
+    assert steps.min() > 0.6 and steps.max() < 1.0
+    np.testing.assert_allclose(np.diff(world.timestamps), 0.1)
+    assert np.abs(world.poses[:, 1, 3]).max() < 0.1  # stays 1.6 m above the road
+
+
+# --- determinism and images ----------------------------------------------------------------------
+
+
+def test_same_seed_renders_identical_frames_and_another_seed_differs():
+    a = build_scenario("dynamic", 4, TINY, seed=3).render_frame(2)
+    b = build_scenario("dynamic", 4, TINY, seed=3).render_frame(2)
+    c = build_scenario("dynamic", 4, TINY, seed=4).render_frame(2)
+    for name in ("left", "right", "dynamic_mask"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert np.abs(a.left.astype(int) - c.left).mean() > 5.0
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_images_are_structured_grey_stereo_pairs(name):
+    frame = scenario(name, n_frames=None if name == "loop" else 12).render_frame(0)
+    assert frame.left.dtype == np.uint8 and frame.left.shape == (SMALL[1], SMALL[0])
+    assert frame.right.shape == frame.left.shape and frame.dynamic_mask.dtype == bool
+    assert frame.left.std() > 20.0 and frame.right.std() > 20.0
+    assert not np.array_equal(frame.left, frame.right)
+
+
+# --- dynamic masks ---------------------------------------------------------------------------------
+
+
+def test_dynamic_masks_are_the_pixels_of_moving_objects_and_cover_10_to_40_percent():
+    world = scenario("dynamic", size=TINY, n_frames=100)
+    fractions = []
+    for index in range(0, world.n_frames, 3):
+        left, _ = world.render_views(index)
+        quads = world.scene.quads_at(index)
+        on_mover = np.zeros(left.quad_id.shape, dtype=bool)
+        visible = left.quad_id >= 0
+        on_mover[visible] = quads.object_id[left.quad_id[visible]] != STATIC_OBJECT
+        np.testing.assert_array_equal(left.object_id != STATIC_OBJECT, on_mover)
+        fractions.append(on_mover.mean())
+    fractions = np.array(fractions)
+    assert ((fractions >= 0.1) & (fractions <= 0.4)).mean() >= 0.95, fractions
+
+
+def test_dynamic_mask_follows_the_truck_ahead_and_matches_the_rendered_frame():
+    world = scenario("dynamic")
+    frame = world.render_frame(5)
+    left, _ = world.render_views(5)
+    np.testing.assert_array_equal(frame.dynamic_mask, left.object_id != STATIC_OBJECT)
+    centre = (world.camera.height // 2, world.camera.width // 2)
+    assert left.object_id[centre] == 1  # the truck in our lane
+    assert 4.0 < 1.0 / left.inv_depth[centre] < 6.5
+
+
+def test_static_and_lowtexture_masks_are_empty():
+    for name in ("static", "lowtexture"):
+        assert not scenario(name).render_frame(3).dynamic_mask.any()
+
+
+# --- scenarios ---------------------------------------------------------------------------------
+
+
+def test_loop_returns_to_its_start_pose_exactly():
+    world = scenario("loop", n_frames=None)
+    assert world.n_frames == 360
+    np.testing.assert_array_equal(world.poses[-1], world.poses[0])
+    np.testing.assert_array_equal(world.poses[0], np.eye(4))
+    assert np.linalg.norm(world.poses[:, :3, 3], axis=1).max() > 50.0
+    assert np.linalg.norm(np.diff(world.poses[:, :3, 3], axis=0), axis=1).max() < 1.0
+    first, _ = world.render_views(0)
+    last, _ = world.render_views(world.n_frames - 1)
+    np.testing.assert_array_equal(first.radiance, last.radiance)
+
+
+def test_loop_needs_300_frames():
+    with pytest.raises(PldSlamError, match="300"):
+        build_scenario("loop", 299, TINY)
+
+
+@pytest.mark.parametrize("size", [(0, 240), (320, -1), (32.5, 24)])
+def test_bad_requests_are_refused(size):
+    with pytest.raises(PldSlamError):
+        build_scenario("static", 3, size)
+    with pytest.raises(PldSlamError, match="unknown"):
+        build_scenario("night", 3, TINY)
+
+
+def feature_counts(name: str) -> tuple[float, float]:
+    """Mean ORB keypoints (FAST threshold 20) and LSD segments of >= 10 px per left image."""
+    orb = cv2.ORB_create(nfeatures=100000, fastThreshold=20)
+    lsd = cv2.createLineSegmentDetector()
+    points, lines = [], []
+    for index in (0, 5, 10):
+        image = scenario(name).render_frame(index).left
+        points.append(len(orb.detect(image, None)))
+        segments = lsd.detect(image)[0].reshape(-1, 4)
+        lines.append(np.sum(np.hypot(segments[:, 2] - segments[:, 0], segments[:, 3] - segments[:, 1]) >= 10))
+    return float(np.mean(points)), float(np.mean(lines))
+
+
+def test_lowtexture_has_few_orb_points_but_plenty_of_lines():
+    static_points, static_lines = feature_counts("static")
+    low_points, low_lines = feature_counts("lowtexture")
+    assert static_points > 500 and static_lines > 100
+    assert low_points < 0.4 * static_points
+    assert low_lines > 40 and low_lines > 0.4 * static_lines
+
+
+# --- the writer ---------------------------------------------------------------------------------
+
+
+def read_matrix_lines(path: Path) -> dict[str, np.ndarray]:
+    rows = [line.split(":") for line in path.read_text().splitlines()]
+    return {key: np.array(values.split(), dtype=float).reshape(3, 4) for key, values in rows}
+
+
+def test_written_sequence_reads_back_and_rewrites_byte_identically(tmp_path):
+    out = tmp_path / "seq"
+    summary = write_sequence(out, "dynamic", n_frames=3, size=TINY, seed=1)
+    assert (summary.n_frames, summary.width, summary.height) == (3, 160, 120)
+    assert 0.1 < summary.mean_dynamic_fraction < 0.4 and summary.pairs_per_second > 0
+    world = build_scenario("dynamic", 3, TINY, seed=1)
+
+    calib = read_matrix_lines(out / "calib.txt")
+    assert set(calib) == {"P0", "P1"}
+    np.testing.assert_allclose(calib["P0"][:, :3], world.camera.K)
+    assert calib["P0"][0, 0] == 0.6 * 160 and calib["P0"][0, 2] == 80 and calib["P0"][1, 2] == 60
+    np.testing.assert_allclose(-calib["P1"][0, 3] / calib["P1"][0, 0], 0.5)
+    poses = np.loadtxt(out / "poses.txt").reshape(-1, 3, 4)
+    np.testing.assert_allclose(poses, world.poses[:, :3, :], atol=1e-12)
+    np.testing.assert_array_equal(poses[0], np.eye(4)[:3])
+    np.testing.assert_allclose(np.loadtxt(out / "times.txt"), [0.0, 0.1, 0.2])
+    meta = json.loads((out / "synth.json").read_text())
+    assert (meta["scenario"], meta["seed"], meta["n_frames"], meta["width"]) == ("dynamic", 1, 3, 160)
+
+    frame = world.render_frame(2)
+    np.testing.assert_array_equal(cv2.imread(str(out / "image_0" / "000002.png"), cv2.IMREAD_UNCHANGED), frame.left)
+    np.testing.assert_array_equal(cv2.imread(str(out / "image_1" / "000002.png"), cv2.IMREAD_UNCHANGED), frame.right)
+    mask = cv2.imread(str(out / "dynamic_masks" / "000002.png"), cv2.IMREAD_UNCHANGED)
+    assert set(np.unique(mask)) <= {0, 255}
+    np.testing.assert_array_equal(mask == 255, frame.dynamic_mask)
+
+    before = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    write_sequence(out, "dynamic", n_frames=3, size=TINY, seed=1)
+    after = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    assert before == after
+
+
+def test_rewriting_a_sequence_removes_its_old_frames(tmp_path):
+    write_sequence(tmp_path, "static", n_frames=4, size=TINY)
+    write_sequence(tmp_path, "static", n_frames=2, size=TINY)
+    assert sorted(p.name for p in (tmp_path / "image_0").iterdir()) == ["000000.png", "000001.png"]
+    assert cv2.imread(str(tmp_path / "dynamic_masks" / "000001.png"), cv2.IMREAD_UNCHANGED).max() == 0
+
+
+def test_writer_refuses_a_non_empty_unrelated_folder(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(PldSlamError, match="not empty"):
+        write_sequence(tmp_path, "static", n_frames=2, size=TINY)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
