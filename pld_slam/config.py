@@ -58,7 +58,7 @@ class PointsConfig:
     )
     sad_half_window: int = _param(5, "half side of the SAD window of sub-pixel refinement [px at the octave]", 1)
     sad_search_radius: int = _param(5, "SAD search +- this many columns around the match [px at the octave]", 1)
-    min_depth_baselines: float = _param(1.0, "nearest stereo point, in baselines (disparity <= fx / this)", 0.01)
+    min_depth_baselines: float = _param(3.0, "nearest stereo point, in baselines (disparity <= fx / this)", 0.01)
     max_depth_baselines: float = _param(
         200.0, "farthest stereo point, in baselines (disparity >= fx / this)", 0.01
     )
@@ -72,23 +72,22 @@ class LinesConfig:
     vertical_error: bool = _param(True, "line vertical error: endpoint distance to the detected line")
     horizontal_error: bool = _param(True, "line horizontal error: endpoint error along the line")
     lsd_scale: float = _param(0.5, "LSD works on the image scaled by this (OpenCV default 0.8)", 0.1, 1.0)
-    min_length: float = _param(0.02, "shortest segment kept, as a fraction of the image diagonal", 0.0, 1.0)
-    max_lines: int = _param(200, "segments kept per image, longest first", 1)
+    min_length: float = _param(0.015, "shortest segment kept, as a fraction of the image diagonal", 0.0, 1.0)
+    max_lines: int = _param(150, "segments kept per image, longest first", 1)
     min_angle_from_horizontal: float = _param(
-        0.17, "segments closer to horizontal than this [rad] have no stable disparity (0.17 = 10 deg)",
-        0.01, 1.5707963267948966,
+        0.26, "segments closer to horizontal than this [rad] have no stable disparity (0.26 = 15 deg)", 0.01, 1.571
     )
     stereo_max_angle_difference: float = _param(
-        0.1, "largest direction difference of a stereo line match [rad]", 0.0, 3.141592653589793
+        0.1, "largest direction difference of a stereo line match [rad]", 0.0, 3.142
     )
     stereo_min_row_overlap: float = _param(
         0.5, "shared row range of a stereo line match, as a fraction of the shorter one", 0.0, 1.0
     )
-    stereo_max_distance: int = _param(80, "largest LBD Hamming distance of a stereo line match [bits]", 0, 256)
+    stereo_max_distance: int = _param(64, "largest LBD Hamming distance of a stereo line match [bits]", 0, 256)
     stereo_ratio: float = _param(
         0.8, "ratio test: best distance < ratio * best rival elsewhere on the row", 0.0, 1.0
     )
-    min_depth_baselines: float = _param(1.0, "nearest line endpoint, in baselines (disparity <= fx / this)", 0.01)
+    min_depth_baselines: float = _param(3.0, "nearest line endpoint, in baselines (disparity <= fx / this)", 0.01)
     max_depth_baselines: float = _param(
         200.0, "farthest line endpoint, in baselines (disparity >= fx / this)", 0.01
     )

@@ -1,0 +1,169 @@
+"""Stereo LSD lines: segment geometry helpers, stereo line matching and endpoint disparities,
+on rendered planes of known pose and on a real KITTI pair."""
+
+import cv2
+import numpy as np
+import pytest
+from conftest import require
+
+from pld_slam.config import LinesConfig, PointsConfig
+from pld_slam.datasets import open_sequence
+from pld_slam.frontend import extract_stereo_features
+from pld_slam.frontend.lines import (
+    detect_image_lines,
+    direction_difference,
+    endpoint_disparities,
+    match_stereo_lines,
+    near_horizontal,
+    row_overlap,
+    segment_angles,
+)
+from pld_slam.frontend.points import disparity_limits
+from pld_slam.geometry.camera import StereoCamera
+
+CAMERA = StereoCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, baseline=0.1, width=640, height=480)
+SUPERSAMPLING = 8
+"""Polygons are filled at 8x and averaged down: edges placed to 1/8 px."""
+
+
+# --- segment geometry --------------------------------------------------------------------
+
+
+def test_near_horizontal_uses_the_angle_from_the_image_rows():
+    segments = np.array([[[0, 0], [100, 10]], [[0, 0], [100, 40]], [[100, 40], [0, 0]], [[0, 0], [0, 50]]], float)
+    np.testing.assert_array_equal(near_horizontal(segments, np.deg2rad(15)), [True, False, False, False])
+
+
+def test_direction_difference_compares_oriented_directions():
+    left = np.array([[[0, 0], [0, 10]]], float)
+    right = np.array([[[5, 0], [6, 10]], [[0, 10], [0, 0]]], float)
+    np.testing.assert_allclose(direction_difference(left, right), [[np.arctan(0.1), np.pi]])
+
+
+def test_row_overlap_is_relative_to_the_shorter_row_range():
+    left = np.array([[[0, 0], [0, 100]]], float)
+    right = np.array([[[0, 50], [0, 70]], [[0, 80], [0, 180]], [[0, 120], [0, 150]]], float)
+    np.testing.assert_allclose(row_overlap(left, right), [[1.0, 0.2, -0.666666666]], atol=1e-6)
+
+
+def test_endpoint_disparities_take_the_right_line_at_the_left_endpoint_rows():
+    left = np.array([[[100, 10], [120, 50]]], float)
+    right = np.array([[[70, 0], [80, 20]]], float)  # u = 70 + v / 2, extended beyond its ends
+    np.testing.assert_allclose(endpoint_disparities(left, right), [[[100 - 75, 120 - 95]]])
+
+
+# --- rendered planes ---------------------------------------------------------------------
+
+
+def render_polygons(polygons_c: list[np.ndarray], shades: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right (480, 640) uint8 images of flat polygons (K, 3) [m, left camera] on grey."""
+    images = []
+    for column in (0, 2):  # u_left, u_right of project_stereo
+        canvas = np.full((CAMERA.height * SUPERSAMPLING, CAMERA.width * SUPERSAMPLING), 60, dtype=np.uint8)
+        for polygon, shade in zip(polygons_c, shades):
+            pixels = CAMERA.project_stereo(polygon)[:, [column, 1]]
+            fine = ((pixels + 0.5) * SUPERSAMPLING - 0.5) * 16  # 4 fractional bits for fillPoly
+            cv2.fillPoly(canvas, [np.rint(fine).astype(np.int32)], shade, lineType=cv2.LINE_8, shift=4)
+        images.append(cv2.resize(canvas, (CAMERA.width, CAMERA.height), interpolation=cv2.INTER_AREA))
+    return images[0], images[1]
+
+
+def slanted_plane(angle: float, depth: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """A plane through (0, 0, depth) turned by ``angle`` [rad] about the camera's y axis.
+
+    Returns its normal ``n`` and offset ``c`` (points x with n . x = c) and two in-plane unit
+    axes, horizontal and vertical.
+    """
+    normal = np.array([np.sin(angle), 0.0, np.cos(angle)])
+    across = np.array([np.cos(angle), 0.0, -np.sin(angle)])
+    return normal, depth * np.cos(angle), across, np.array([0.0, 1.0, 0.0])
+
+
+def squares_on_plane(angle: float, depth: float) -> list[np.ndarray]:
+    """Squares (4, 3) [m] on the plane of `slanted_plane`, turned in-plane by 0, 30, 45 or 60 deg."""
+    _, _, across, down = slanted_plane(angle, depth)
+    centre = np.array([0.0, 0.0, depth])
+    corners = np.deg2rad([45, 135, 225, 315])
+    squares = []
+    for i, s in enumerate([-1.6, -0.8, 0.0, 0.8, 1.6]):
+        for j, t in enumerate([-0.7, 0.0, 0.7]):
+            turn = np.deg2rad([0, 45, 30, 60][(i + j) % 4])
+            offsets = 0.25 * np.sqrt(2) * np.column_stack([np.cos(corners + turn), np.sin(corners + turn)])
+            squares.append(centre + (s + offsets[:, :1]) * across + (t + offsets[:, 1:]) * down)
+    return squares
+
+
+def plane_disparity(pixels: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """Disparity (N,) [px] of the plane n . x = c seen at left pixels (N, 2)."""
+    rays = np.column_stack([(pixels - [CAMERA.cx, CAMERA.cy]) / CAMERA.fx, np.ones(len(pixels))])
+    return CAMERA.bf * (rays @ normal) / offset
+
+
+def stereo_lines(left: np.ndarray, right: np.ndarray, config: LinesConfig):
+    return match_stereo_lines(detect_image_lines(left, config), detect_image_lines(right, config), CAMERA, config)
+
+
+def test_endpoint_disparities_on_a_slanted_plane_match_its_geometry():
+    normal, offset, _, _ = slanted_plane(np.deg2rad(35), 4.0)
+    squares = squares_on_plane(np.deg2rad(35), 4.0)
+    left, right = render_polygons(squares, [200, 140, 230, 170] * 4)
+    lines = stereo_lines(left, right, LinesConfig())
+    expected = plane_disparity(lines.endpoints.reshape(-1, 2), normal, offset).reshape(-1, 2)
+    error = np.abs(lines.disparity - expected)
+    assert len(lines) > 40  # of 60 edges, the near-horizontal ones dropped
+    assert np.median(error) < 0.15
+    assert error.max() < 0.5
+    assert np.ptp(lines.disparity) > 2.0  # depth really varies
+    depth = lines.endpoints_c[:, :, 2].reshape(-1)
+    np.testing.assert_allclose(depth, CAMERA.bf / lines.disparity.reshape(-1))
+    np.testing.assert_allclose(lines.endpoints_c.reshape(-1, 3) @ normal, offset, rtol=0.04)
+
+
+def test_near_horizontal_edges_are_dropped_and_upright_ones_kept():
+    config = LinesConfig()
+    square = [np.array([[-0.5, -0.5, 3.0], [0.5, -0.5, 3.0], [0.5, 0.5, 3.0], [-0.5, 0.5, 3.0]])]
+    left, right = render_polygons(square, [200])
+    raw = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, config.lsd_scale).detect(left)[0].reshape(-1, 2, 2)
+    assert near_horizontal(raw, config.min_angle_from_horizontal).sum() >= 2  # the top and bottom edges
+    lines = stereo_lines(left, right, config)
+    angles = np.abs(segment_angles(lines.endpoints.reshape(-1, 2, 2)))
+    assert len(lines) == 2
+    np.testing.assert_allclose(angles, np.pi / 2, atol=0.01)
+    np.testing.assert_allclose(lines.disparity, CAMERA.bf / 3.0, atol=0.1)
+
+
+def test_blank_images_give_no_lines():
+    blank = np.full((CAMERA.height, CAMERA.width), 128, dtype=np.uint8)
+    lines = stereo_lines(blank, blank, LinesConfig())
+    assert len(lines) == 0
+    assert lines.endpoints_c.shape == (0, 2, 3) and lines.descriptors.shape == (0, 32)
+
+
+# --- KITTI -------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def kitti(data_dir):
+    """Frame 0 of the KITTI odometry 06 extract: (camera, left, right)."""
+    sequence = open_sequence(require(data_dir / "kitti_odometry" / "sequences" / "06"))
+    frame = sequence[0]
+    return sequence.camera, frame.left, frame.right
+
+
+def test_kitti_pair_gives_many_stereo_lines_at_plausible_depths(kitti):
+    camera, left, right = kitti
+    config = LinesConfig()
+    lines = match_stereo_lines(detect_image_lines(left, config), detect_image_lines(right, config), camera, config)
+    d_min, d_max = disparity_limits(camera, config.min_depth_baselines, config.max_depth_baselines)
+    assert len(lines) > 50
+    assert np.all((lines.disparity >= d_min) & (lines.disparity <= d_max))
+    assert 5.0 < np.median(lines.endpoints_c[:, :, 2]) < 40.0
+    assert not near_horizontal(lines.endpoints.reshape(-1, 2, 2), config.min_angle_from_horizontal).any()
+    np.testing.assert_allclose(camera.project(lines.endpoints_c.reshape(-1, 3)), lines.endpoints.reshape(-1, 2))
+
+
+def test_lines_disabled_gives_no_lines(kitti):
+    camera, left, right = kitti
+    features = extract_stereo_features(left, right, camera, PointsConfig(n_features=2000), LinesConfig(enabled=False))
+    assert len(features.lines) == 0
+    assert len(features.points) > 300
