@@ -8,12 +8,12 @@ import pytest
 import yaml
 from click.testing import CliRunner
 from conftest import require
+from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.io.trajectory import read_kitti, write_kitti, write_tum
 from pld_slam.trajectory import Trajectory
-from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
 JSON_KEYS = {"ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched"}
 
@@ -81,7 +81,8 @@ def test_eval_against_a_sequence_folder_stamps_a_kitti_estimate_with_frame_times
 
 
 def test_eval_writes_plots(synthetic_sequence, tmp_path):
-    result = run("eval", synthetic_sequence / "poses.txt", synthetic_sequence / "poses.txt", "--plot", tmp_path / "plots")
+    truth = synthetic_sequence / "poses.txt"
+    result = run("eval", truth, truth, "--plot", tmp_path / "plots")
     assert result.exit_code == 0, result.output
     assert (tmp_path / "plots" / "trajectory_top_view.png").stat().st_size > 1000
     assert (tmp_path / "plots" / "ate_over_time.png").stat().st_size > 1000
