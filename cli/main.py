@@ -8,12 +8,14 @@ for ``--verbose`` and exit code 1. ``--verbose`` re-raises so the traceback show
 import sys
 
 import click
-from pld_slam_cli.config import config_command
-from pld_slam_cli.evaluate import eval_command
-from pld_slam_cli.synth import synth_command
 
 from pld_slam import __version__
 from pld_slam.errors import PldSlamError
+from pld_slam_cli.config import config_command
+from pld_slam_cli.demo import demo_command
+from pld_slam_cli.evaluate import eval_command
+from pld_slam_cli.run import run_command
+from pld_slam_cli.synth import synth_command
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
@@ -55,6 +57,8 @@ def cli(ctx: click.Context, verbose: bool) -> None:
     ctx.ensure_object(dict)["verbose"] = verbose
 
 
+cli.add_command(run_command)
+cli.add_command(demo_command)
 cli.add_command(synth_command)
 cli.add_command(eval_command)
 cli.add_command(config_command)

@@ -49,6 +49,9 @@ class PointsConfig:
         3.0, "ORB detects oversampling * n_features corners; bucketing keeps n_features", 1.0, 20.0
     )
     bucket_size: int = _param(32, "side of the square bucketing cells [px]", 4)
+    min_separation_px: int = _param(
+        3, "one keypoint per cell of this side [px]: the same corner found at several octaves counts once", 1
+    )
     stereo_row_tolerance: float = _param(
         2.0, "stereo candidates lie within this many rows, times scale_factor^octave [px]", 0.0
     )
@@ -98,14 +101,48 @@ class FiltersConfig:
     """The two frame-to-frame mismatch filters (paper, sections Track_a and Track_b)."""
 
     point_grid: bool = _param(True, "point mismatch filter by grid_cval")
-    point_grid_cols: int = _param(64, "grid columns of the point filter (paper: 64 x 48)", 1)
-    point_grid_rows: int = _param(48, "grid rows of the point filter (paper: 64 x 48)", 1)
+    point_grid_cell_width: int = _param(64, "cell width of the point filter's grid [px] (paper: 64 x 48)", 1)
+    point_grid_cell_height: int = _param(48, "cell height of the point filter's grid [px] (paper: 64 x 48)", 1)
     point_grid_alpha: float = _param(
         1.5, "a match is an outlier when |g_l - g_r| > alpha times the cell mean (paper: 1.5)", 0.0
     )
     line_llg: bool = _param(True, "line mismatch filter by local line groups (LLG)")
     line_llg_factor: float = _param(
         2.0, "a match is an outlier when its angle or midpoint shift exceeds this times the LLG mean (paper: 2)", 0.0
+    )
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Frame-to-frame matching and pose-only estimation (paper, sections Track and Track_d)."""
+
+    point_search_radius_px: float = _param(
+        15.0, "window around a point's motion-model prediction searched for its match [px at octave 0]", 1.0
+    )
+    line_search_radius_px: float = _param(
+        30.0, "window around a line midpoint's motion-model prediction searched for its match [px]", 1.0
+    )
+    line_max_angle_change: float = _param(
+        0.2, "largest direction change of a frame-to-frame line match from its prediction [rad]", 0.0, 3.142
+    )
+    wide_search_factor: float = _param(
+        4.0, "search windows grow by this factor when the first search finds too few matches", 1.0
+    )
+    max_point_distance: int = _param(64, "largest ORB Hamming distance of a frame-to-frame match [bits]", 0, 256)
+    max_line_distance: int = _param(64, "largest LBD Hamming distance of a frame-to-frame match [bits]", 0, 256)
+    ratio: float = _param(0.9, "ratio test of frame-to-frame matches: best < ratio * best rival", 0.0, 1.0)
+    line_sigma_px: float = _param(1.0, "standard deviation of a line endpoint's image position [px]", 0.01)
+    border_margin_px: float = _param(
+        10.0, "a line's horizontal error is used only when both endpoints are this far inside the image", 0.0
+    )
+    min_inliers: int = _param(
+        20, "fewer inlier points + lines than this is a tracking failure: the motion model is kept", 1
+    )
+    reference_max_age: int = _param(
+        5, "frames tracked against one reference frame before the current frame becomes the reference", 1
+    )
+    reference_min_inlier_ratio: float = _param(
+        0.5, "the current frame becomes the reference when inliers fall below this share of the first", 0.0, 1.0
     )
 
 
@@ -166,6 +203,7 @@ class Config:
     points: PointsConfig = field(default_factory=PointsConfig)
     lines: LinesConfig = field(default_factory=LinesConfig)
     filters: FiltersConfig = field(default_factory=FiltersConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
     dynamic: DynamicConfig = field(default_factory=DynamicConfig)
     ggs: GgsConfig = field(default_factory=GgsConfig)
     keyframes: KeyframesConfig = field(default_factory=KeyframesConfig)

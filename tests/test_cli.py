@@ -143,5 +143,5 @@ def test_config_error_names_the_key():
     assert result.exit_code == EXIT_USER_ERROR
     assert result.output == (
         "error: --set filters.point_grid_alpfa=2: unknown key filters.point_grid_alpfa (known: line_llg, "
-        "line_llg_factor, point_grid, point_grid_alpha, point_grid_cols, point_grid_rows)\n"
+        "line_llg_factor, point_grid, point_grid_alpha, point_grid_cell_height, point_grid_cell_width)\n"
     )

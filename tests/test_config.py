@@ -13,7 +13,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 def test_defaults_are_the_papers_values():
     config = Config()
-    assert (config.filters.point_grid_cols, config.filters.point_grid_rows) == (64, 48)
+    assert (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height) == (64, 48)
     assert config.filters.point_grid_alpha == 1.5
     assert config.filters.line_llg_factor == 2.0
     assert (config.ggs.scale, config.ggs.grid_rows, config.ggs.grid_cols, config.ggs.bins) == (0.8, 3, 4, 256)

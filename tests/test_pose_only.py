@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 from finite_differences import CAMERA, random_points_in_view, random_pose
+from scipy.optimize import least_squares
 
 from pld_slam.geometry.se3 import inverse, se3_exp, so3_log, transform_points
 from pld_slam.optim.line_reprojection import detected_line_directions
@@ -14,6 +15,8 @@ from pld_slam.optim.pose_only import (
     PoseOnlyOptions,
     PoseOnlyStatus,
     _PoseProblem,
+    _WhitenedRows,
+    huber_without_curvature,
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
@@ -80,7 +83,7 @@ def test_solver_jacobian_matches_central_differences_away_from_the_initial_pose(
     rng = np.random.default_rng(5)
     T_true = random_pose(rng)
     points, lines = observe_points(rng, T_true, 20, 1.0), observe_lines(rng, T_true, 10, 1.0)
-    problem = _PoseProblem(CAMERA, perturbed(T_true), points, lines, lines, min_depth=1e-3)
+    problem = _PoseProblem(CAMERA, perturbed(T_true), _WhitenedRows.of(points, lines, lines), min_depth=1e-3)
     x, h = rng.normal(0.0, 0.05, 6), 1e-6
     numeric = np.column_stack(
         [
@@ -89,6 +92,29 @@ def test_solver_jacobian_matches_central_differences_away_from_the_initial_pose(
         ]
     )
     assert np.allclose(numeric, problem.jacobian(x), rtol=0.0, atol=1e-6 * np.abs(numeric).max())
+
+
+def test_huber_without_curvature_is_the_huber_loss_with_its_slope():
+    z = np.array([0.0, 0.25, 1.0, 4.0, 100.0])
+    h = 1e-6
+    rho = huber_without_curvature(z)
+    slope = (huber_without_curvature(z + h)[0] - huber_without_curvature(np.maximum(z - h, 0.0))[0]) / (
+        z + h - np.maximum(z - h, 0.0)
+    )
+    assert np.allclose(rho[0], [0.0, 0.25, 1.0, 3.0, 19.0])
+    assert np.allclose(rho[1], slope, atol=1e-6) and np.all(rho[2] == 0.0)
+
+
+def test_huber_without_curvature_has_the_optimum_of_scipys_huber():
+    rng = np.random.default_rng(7)
+    T_true = random_pose(rng)
+    points, lines = observe_points(rng, T_true, 100, 1.0), observe_lines(rng, T_true, 30, 1.0)
+    problem = _PoseProblem(CAMERA, T_true, _WhitenedRows.of(points, lines, lines), min_depth=1e-3)
+    solutions = [
+        least_squares(problem.residuals, np.zeros(6), jac=problem.jacobian, loss=loss, f_scale=2.0, ftol=1e-12).x
+        for loss in ("huber", huber_without_curvature)
+    ]
+    assert np.allclose(solutions[0], solutions[1], rtol=0.0, atol=1e-9)
 
 
 def test_chi2_is_the_squared_residual_norm_over_sigma_squared():
@@ -176,6 +202,24 @@ def test_rejection_rounds_flag_twenty_percent_gross_outliers(seed):
     assert not np.any(result.inliers.lines[line_outliers])
     assert np.mean(np.delete(result.inliers.points, point_outliers)) > 0.85
     assert np.mean(np.delete(result.inliers.lines, line_outliers)) > 0.85
+
+
+def test_rounds_skipped_at_a_fixed_point_do_not_change_the_result():
+    rng = np.random.default_rng(10)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 100, 0.5)
+    stereo_px = points.stereo_px.copy()
+    stereo_px[:10] += 40.0
+    points = dataclasses.replace(points, stereo_px=stereo_px)
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points)
+    options, T_c_w, include = PoseOnlyOptions(), perturbed(T_true), None
+    for round_index in range(options.rounds):
+        every_round = optimize_pose(CAMERA, T_c_w, points, None, options, include, round_index < options.robust_rounds)
+        T_c_w, include = every_round.T_c_w, every_round.inliers
+    assert result.success and result.rounds < options.rounds
+    translation, rotation = pose_errors(result.T_c_w, every_round.T_c_w)
+    assert translation < 1e-7 and rotation < 1e-8
+    assert np.array_equal(result.inliers.points, every_round.inliers.points)
 
 
 def test_a_line_with_bad_endpoints_keeps_its_vertical_term_and_loses_the_horizontal():

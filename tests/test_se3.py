@@ -94,3 +94,15 @@ def test_se3_left_jacobian_series_meets_the_closed_form_at_the_switch():
     below = se3_left_jacobian(np.concatenate([rho, (1e-2 - 1e-12) * axis]))
     above = se3_left_jacobian(np.concatenate([rho, (1e-2 + 1e-12) * axis]))
     assert np.allclose(below, above, rtol=0.0, atol=1e-10)
+
+
+def test_nearest_pose_repairs_a_drifted_rotation_and_keeps_translation():
+    rng = np.random.default_rng(4)
+    T = se3.se3_exp(rng.normal(size=6))
+    drifted = T.copy()
+    drifted[:3, :3] += 1e-3 * rng.normal(size=(3, 3))
+    repaired = se3.nearest_pose(drifted)
+    assert np.allclose(repaired[:3, :3] @ repaired[:3, :3].T, np.eye(3), atol=1e-14)
+    assert np.allclose(repaired[:3, :3], T[:3, :3], atol=5e-3)
+    assert np.array_equal(repaired[:3, 3], T[:3, 3])
+    assert np.allclose(se3.nearest_pose(T), T, atol=1e-14)

@@ -146,6 +146,20 @@ def inverse(T: np.ndarray) -> np.ndarray:
     return T_inv
 
 
+def nearest_pose(T: np.ndarray) -> np.ndarray:
+    """The pose (4, 4) whose rotation is the rotation nearest to ``T[:3, :3]`` (SVD projection).
+
+    Poses built by chains of products drift off SO(3) by rounding; a chain that feeds
+    back into itself (a motion model) makes the drift grow geometrically, so such chains
+    re-project after each product.
+    """
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0.0:
+        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    return make_pose(R, T[:3, 3])
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Rotation angle [rad] of a rotation (3, 3) or a stack (N, 3, 3), in [0, pi]."""
     trace = np.trace(R, axis1=-2, axis2=-1)

@@ -35,6 +35,12 @@ The paper leaves the horizontal sign open. We take the component along ``d`` of 
 endpoint reprojection error ``x - y`` (predicted minus observed, as for points), so the
 two errors are the coordinates of the endpoint error in the orthonormal frame
 ``(n, d)`` of the detected line: vertical**2 + horizontal**2 = |x - y|**2.
+
+Rows. Both errors are affine in a projected endpoint, ``axis . x + offset``, with an axis
+and offset fixed by the detection: `LineErrorRows`, one scalar row per endpoint. A solver
+that evaluates them at many poses builds the rows once (`line_vertical_rows`,
+`line_horizontal_rows`, scaled to whiten them) and calls `line_row_errors` per pose;
+`line_vertical_error` and `line_horizontal_error` are the same computation in one call.
 """
 
 from dataclasses import dataclass
@@ -42,7 +48,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.optim.point_reprojection import MIN_DEPTH, project_stereo_with_jacobians
+from pld_slam.optim.point_reprojection import (
+    MIN_DEPTH,
+    clamped_stereo_pixel_jacobian,
+    pose_jacobian_from_camera_gradient,
+    to_camera_frame,
+)
 
 
 @dataclass(frozen=True)
@@ -100,6 +111,102 @@ def endpoints_away_from_border(
     return np.all((endpoints >= margin_px) & (endpoints <= high), axis=(1, 2))
 
 
+@dataclass(frozen=True)
+class LineErrorRows:
+    """M scalar line errors ``axis . x + offset``, ``x`` the left-image projection of a world endpoint.
+
+    Both line errors have this form, one row per endpoint of a segment, the axis being the
+    detected line's normal ``n`` (vertical error) or direction ``d`` (horizontal error).
+    Scaling a row by ``1 / sigma`` scales its axis and offset, so whitened rows are rows too.
+
+    Attributes
+    ----------
+    endpoints_w : (M, 3) world endpoint of each row [m].
+    axes : (M, 2) image axis of each row.
+    offsets : (M,) offset of each row [px].
+    """
+
+    endpoints_w: np.ndarray
+    axes: np.ndarray
+    offsets: np.ndarray
+
+    def scaled(self, factor: np.ndarray) -> "LineErrorRows":
+        """The rows multiplied by ``factor`` (M,) (e.g. whitened by ``1 / sigma``)."""
+        return LineErrorRows(self.endpoints_w, self.axes * factor[:, None], self.offsets * factor)
+
+    def select(self, mask: np.ndarray) -> "LineErrorRows":
+        """The rows where ``mask`` (M,) is True."""
+        return LineErrorRows(self.endpoints_w[mask], self.axes[mask], self.offsets[mask])
+
+    @staticmethod
+    def concatenate(rows: "list[LineErrorRows]") -> "LineErrorRows":
+        """All rows of several `LineErrorRows`, in order."""
+        return LineErrorRows(
+            np.concatenate([r.endpoints_w for r in rows]),
+            np.concatenate([r.axes for r in rows]),
+            np.concatenate([r.offsets for r in rows]),
+        )
+
+
+@dataclass(frozen=True)
+class LineRowErrors:
+    """The values of M `LineErrorRows` at a pose, with Jacobians (depth clamped where not valid).
+
+    Attributes
+    ----------
+    residual : (M,) ``axis . x + offset`` [px, or whitened units for scaled rows].
+    jac_pose : (M, 6) derivative w.r.t. the left perturbation ``delta`` of ``T_c_w``.
+    jac_endpoint : (M, 3) derivative w.r.t. the row's world endpoint.
+    valid : (M,) bool, the endpoint lies deeper than ``min_depth`` in the left camera.
+    """
+
+    residual: np.ndarray
+    jac_pose: np.ndarray
+    jac_endpoint: np.ndarray
+    valid: np.ndarray
+
+
+def line_vertical_rows(
+    start_w: np.ndarray, end_w: np.ndarray, start_px: np.ndarray, end_px: np.ndarray
+) -> LineErrorRows:
+    """The 2N rows of `line_vertical_error`: row ``2i`` the start term, ``2i + 1`` the end term of segment i.
+
+    Parameters as in `line_vertical_error`.
+    """
+    line = detected_line_coefficients(start_px, end_px)
+    return _segment_rows(start_w, end_w, line[:, :2], line[:, 2], line[:, 2])
+
+
+def line_horizontal_rows(
+    start_w: np.ndarray, end_w: np.ndarray, start_px: np.ndarray, end_px: np.ndarray
+) -> LineErrorRows:
+    """The 2N rows of `line_horizontal_error`, ordered as in `line_vertical_rows`."""
+    direction = detected_line_directions(start_px, end_px)
+    return _segment_rows(start_w, end_w, direction, -_row_dot(direction, start_px), -_row_dot(direction, end_px))
+
+
+def line_row_errors(
+    camera: StereoCamera, T_c_w: np.ndarray, rows: LineErrorRows, min_depth: float = MIN_DEPTH
+) -> LineRowErrors:
+    """The values of line error rows at ``T_c_w`` (4, 4), with Jacobians.
+
+    An endpoint at depth ``<= min_depth`` [m] is projected at that depth and flags its row
+    not valid (module docstring). Only the left-image rows of the projection are formed:
+    a row's derivative w.r.t. its camera-frame endpoint is ``axis . d(u_left, v) / d p_c``
+    (3,), which gives the pose and endpoint Jacobians without the (M, 3, 6) and (M, 3, 3)
+    stereo ones: measured 1.5x faster for 400 rows than `project_stereo_with_jacobians`.
+    """
+    seen = to_camera_frame(T_c_w, rows.endpoints_w, min_depth)
+    d_left_pixel_d_pc = clamped_stereo_pixel_jacobian(camera, seen)[:, :2]
+    gradient = np.einsum("ij,ijk->ik", rows.axes, d_left_pixel_d_pc)
+    return LineRowErrors(
+        residual=_row_dot(rows.axes, camera.project(seen.clamped)) + rows.offsets,
+        jac_pose=pose_jacobian_from_camera_gradient(seen.p_c, gradient[:, None])[:, 0],
+        jac_endpoint=gradient @ T_c_w[:3, :3],
+        valid=seen.valid,
+    )
+
+
 def line_vertical_error(
     camera: StereoCamera,
     T_c_w: np.ndarray,
@@ -122,10 +229,8 @@ def line_vertical_error(
     start_px, end_px : (N, 2) detected endpoints ``s``, ``e`` in the left image [px].
     min_depth : smallest depth [m] at which an endpoint counts as in front of the camera.
     """
-    line = detected_line_coefficients(start_px, end_px)
-    return _projected_endpoints_along_axis(
-        camera, T_c_w, start_w, end_w, line[:, :2], line[:, 2], line[:, 2], min_depth
-    )
+    rows = line_vertical_rows(start_w, end_w, start_px, end_px)
+    return _two_row_error(line_row_errors(camera, T_c_w, rows, min_depth))
 
 
 def line_horizontal_error(
@@ -143,55 +248,41 @@ def line_horizontal_error(
     projected endpoint lies beyond its detected endpoint in the direction ``s -> e``.
     Parameters as in `line_vertical_error`.
     """
-    direction = detected_line_directions(start_px, end_px)
-    return _projected_endpoints_along_axis(
-        camera,
-        T_c_w,
-        start_w,
-        end_w,
-        direction,
-        -_row_dot(direction, start_px),
-        -_row_dot(direction, end_px),
-        min_depth,
-    )
+    rows = line_horizontal_rows(start_w, end_w, start_px, end_px)
+    return _two_row_error(line_row_errors(camera, T_c_w, rows, min_depth))
 
 
-def _projected_endpoints_along_axis(
-    camera: StereoCamera,
-    T_c_w: np.ndarray,
-    start_w: np.ndarray,
-    end_w: np.ndarray,
-    axis: np.ndarray,
-    offset_start: np.ndarray,
-    offset_end: np.ndarray,
-    min_depth: float,
-) -> LineReprojection:
-    """The affine functions ``axis . p + offset_start`` and ``axis . q + offset_end`` with Jacobians.
+def _segment_rows(
+    start_w: np.ndarray, end_w: np.ndarray, axis: np.ndarray, offset_start: np.ndarray, offset_end: np.ndarray
+) -> LineErrorRows:
+    """Rows ``axis . p + offset_start``, ``axis . q + offset_end`` of N segments, interleaved (2N rows).
 
-    Both line errors have this form, with ``axis`` (N, 2) a unit vector in the image and
-    ``p``, ``q`` the left-image projections of ``start_w``, ``end_w`` (N, 3).
+    ``axis`` (N, 2) is shared by both rows of a segment, ``p``, ``q`` are the projections
+    of ``start_w``, ``end_w`` (N, 3).
     """
-    start = project_stereo_with_jacobians(camera, T_c_w, start_w, min_depth)
-    end = project_stereo_with_jacobians(camera, T_c_w, end_w, min_depth)
-    residual = np.column_stack(
-        [_row_dot(axis, start.pixels[:, :2]) + offset_start, _row_dot(axis, end.pixels[:, :2]) + offset_end]
+    return LineErrorRows(
+        endpoints_w=np.stack([start_w, end_w], axis=1).reshape(-1, 3),
+        axes=np.repeat(axis, 2, axis=0),
+        offsets=np.column_stack([offset_start, offset_end]).ravel(),
     )
-    jac_start = np.zeros((len(axis), 2, 3))
-    jac_start[:, 0] = _left_pixel_jacobian_along(axis, start.jac_point)
-    jac_end = np.zeros((len(axis), 2, 3))
-    jac_end[:, 1] = _left_pixel_jacobian_along(axis, end.jac_point)
-    jac_pose = np.stack(
-        [_left_pixel_jacobian_along(axis, start.jac_pose), _left_pixel_jacobian_along(axis, end.jac_pose)],
-        axis=1,
+
+
+def _two_row_error(row_errors: LineRowErrors) -> LineReprojection:
+    """The `LineReprojection` of N segments from their 2N interleaved row errors."""
+    n = len(row_errors.residual) // 2
+    jac_start = np.zeros((n, 2, 3))
+    jac_start[:, 0] = row_errors.jac_endpoint[0::2]
+    jac_end = np.zeros((n, 2, 3))
+    jac_end[:, 1] = row_errors.jac_endpoint[1::2]
+    return LineReprojection(
+        residual=row_errors.residual.reshape(n, 2),
+        jac_pose=row_errors.jac_pose.reshape(n, 2, 6),
+        jac_start=jac_start,
+        jac_end=jac_end,
+        valid=row_errors.valid[0::2] & row_errors.valid[1::2],
     )
-    return LineReprojection(residual, jac_pose, jac_start, jac_end, valid=start.valid & end.valid)
 
 
 def _row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot products (N,) of two (N, k) arrays."""
     return np.einsum("ij,ij->i", a, b)
-
-
-def _left_pixel_jacobian_along(axis: np.ndarray, stereo_jacobian: np.ndarray) -> np.ndarray:
-    """``axis . d(u_left, v)`` (N, k) for image axes (N, 2) and a stereo-pixel Jacobian (N, 3, k)."""
-    return np.einsum("ij,ijk->ik", axis, stereo_jacobian[:, :2])

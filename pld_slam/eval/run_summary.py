@@ -1,0 +1,78 @@
+"""The summary of a run: frames, failures, per-stage timing, real-time factor, accuracy.
+
+`summarise_run` returns plain JSON-ready data; its accuracy keys are those of
+``pld-slam eval --json`` (`EvalResult`), null where the sequence has no ground truth or
+too few frames overlap it.
+"""
+
+import numpy as np
+
+from pld_slam.config import Config, config_to_dict
+from pld_slam.datasets import StereoSequence
+from pld_slam.errors import TrajectoryError
+from pld_slam.eval.metrics import EvalResult, evaluate
+from pld_slam.system import STAGES, RunResult
+from pld_slam.tracking.tracker import TrackingStatus
+from pld_slam.trajectory import Trajectory
+
+_ACCURACY_KEYS = tuple(EvalResult.__dataclass_fields__)
+
+
+def stage_timing(result: RunResult) -> dict[str, dict[str, float]]:
+    """Median and mean wall time [ms] of each stage over the frames that ran it."""
+    timing = {}
+    for stage in STAGES:
+        values = [record.stage_ms[stage] for record in result.records if stage in record.stage_ms]
+        if values:
+            timing[stage] = {"median": float(np.median(values)), "mean": float(np.mean(values))}
+    return timing
+
+
+def real_time_factor(sequence: StereoSequence, result: RunResult) -> float | None:
+    """Sequence time covered by the processed frames over the wall time spent on them.
+
+    The covered time is the number of frames times the median frame period, so that a
+    run of N frames of a 10 Hz sequence covers N / 10 s. None for fewer than 2 frames.
+    """
+    if len(result.records) < 2 or len(sequence) < 2 or result.wall_seconds <= 0.0:
+        return None
+    period = float(np.median(np.diff(sequence.timestamps)))
+    return len(result.records) * period / result.wall_seconds
+
+
+def accuracy(groundtruth: Trajectory | None, estimate: Trajectory) -> dict[str, float | int | None]:
+    """The `EvalResult` keys of the estimate against the ground truth, null where not computable."""
+    if groundtruth is None:
+        return dict.fromkeys(_ACCURACY_KEYS)
+    try:
+        return evaluate(groundtruth, estimate).as_dict()
+    except TrajectoryError:  # too few matched poses to align, e.g. a run stopped after 2 frames
+        return dict.fromkeys(_ACCURACY_KEYS)
+
+
+def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -> dict:
+    """JSON-ready summary of a run on ``sequence`` (see the module docstring)."""
+    records = result.records
+    median = lambda values: float(np.median(values)) if len(values) else None  # noqa: E731
+    return {
+        "sequence": sequence.name,
+        "layout": sequence.layout,
+        "root": str(sequence.root),
+        "frames": len(records),
+        "frames_in_sequence": len(sequence),
+        "completed": result.stop_reason is None,
+        "stop_reason": result.stop_reason,
+        "tracking_failures": [r.index for r in records if r.status is TrackingStatus.LOST],
+        "skipped_frames": [{"index": r.index, "reason": r.skipped_reason} for r in records if r.skipped_reason],
+        "timing_ms": stage_timing(result),
+        "wall_seconds": result.wall_seconds,
+        "real_time_factor": real_time_factor(sequence, result),
+        **accuracy(sequence.groundtruth, result.trajectory()),
+        "features_median": {
+            "stereo_points": median([r.n_points for r in records]),
+            "stereo_lines": median([r.n_lines for r in records]),
+            "point_inliers": median([r.counts.point_inliers for r in records[1:]]),
+            "line_inliers": median([r.counts.line_inliers for r in records[1:]]),
+        },
+        "config": config_to_dict(config),
+    }

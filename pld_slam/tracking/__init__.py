@@ -1,0 +1,1 @@
+"""Tracking: frame-to-frame matching, mismatch filters, dynamic features, pose."""
