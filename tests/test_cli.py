@@ -8,12 +8,12 @@ import pytest
 import yaml
 from click.testing import CliRunner
 from conftest import require
-from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.io.trajectory import read_kitti, write_kitti, write_tum
 from pld_slam.trajectory import Trajectory
+from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
 JSON_KEYS = {"ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched"}
 
@@ -145,3 +145,40 @@ def test_config_error_names_the_key():
         "error: --set filters.point_grid_alpfa=2: unknown key filters.point_grid_alpfa (known: line_llg, "
         "line_llg_factor, point_grid, point_grid_alpha, point_grid_cell_height, point_grid_cell_width)\n"
     )
+
+
+def test_run_writes_trajectories_summary_and_plot(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 4)
+    assert result.exit_code == 0, result.output
+    assert "ATE RMSE" in result.output and "total ms/frame" in result.output
+    kitti = read_kitti(out / "trajectory.kitti.txt")
+    assert len(kitti) == 4 and np.allclose(kitti.poses[0], np.eye(4))
+    assert len((out / "trajectory.tum.txt").read_text().splitlines()) == 4 + 1  # a '#' header line
+    assert (out / "trajectory.png").stat().st_size > 1000
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 4 and summary["frames_in_sequence"] == 6 and summary["completed"]
+    assert JSON_KEYS <= set(summary) and summary["n_matched"] == 4
+    assert summary["config"]["filters"]["point_grid_alpha"] == 1.5
+
+
+def test_run_json_prints_the_summary_and_applies_overrides(synthetic_sequence, tmp_path):
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--set", "lines.enabled=false", "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output)
+    assert summary["config"]["lines"]["enabled"] is False
+    assert summary["features_median"]["stereo_lines"] == 0
+
+
+def test_run_rejects_a_bad_override_before_running(synthetic_sequence, tmp_path):
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--set", "lines.enabled=maybe")
+    assert result.exit_code == EXIT_USER_ERROR
+    assert result.output.startswith("error: --set lines.enabled=maybe: lines.enabled must be true or false")
+
+
+def test_demo_generates_a_sequence_and_prints_accuracy_and_speed(tmp_path):
+    result = run("demo", "--out", tmp_path / "demo", "--frames", 8)
+    assert result.exit_code == 0, result.output
+    assert "ATE RMSE" in result.output and "real-time factor" in result.output
+    summary = json.loads((tmp_path / "demo" / "run" / "summary.json").read_text())
+    assert summary["frames"] == 8 and summary["ate_rmse_m"] < 0.1

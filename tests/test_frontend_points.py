@@ -134,7 +134,7 @@ def test_plane_at_known_depth_gives_its_disparity_to_subpixel_accuracy(disparity
 
 def test_planted_copy_makes_a_match_ambiguous_and_the_ratio_test_rejects_it():
     # One pyramid level and every corner kept, so that both copies are candidates.
-    config = PointsConfig(n_features=20000, oversampling=1.0, n_levels=1)
+    config = PointsConfig(n_features=20000, oversampling=1.0, n_levels=1, min_separation_px=1)
     texture = smooth_texture(CAMERA.height * SUPERSAMPLING, (CAMERA.width + 60) * SUPERSAMPLING, seed=4)
     left, right = shifted_pair(texture, 20.0)
     rows, columns = slice(200, 300), slice(360, 460)  # a patch of the right image ...
@@ -208,3 +208,13 @@ def test_extraction_is_deterministic(kitti):
         a, b = getattr(first, kind), getattr(second, kind)
         for spec in dataclasses.fields(a):
             np.testing.assert_array_equal(getattr(a, spec.name), getattr(b, spec.name), err_msg=f"{kind}.{spec.name}")
+
+
+def test_kitti_keeps_a_corner_found_at_several_octaves_once(kitti):
+    _, left, _ = kitti
+    kept = detect_image_points(left, KITTI_POINTS)
+    cells = bucket_cells(kept.uv, KITTI_POINTS.min_separation_px)
+    assert np.unique(cells).size == len(kept.uv)
+    with_copies = detect_image_points(left, dataclasses.replace(KITTI_POINTS, min_separation_px=1))
+    close = np.linalg.norm(with_copies.uv[:, None] - with_copies.uv[None], axis=2) < 1.0
+    assert (close.sum() - len(with_copies.uv)) > 50  # without it, copies are common

@@ -106,3 +106,13 @@ def test_nearest_pose_repairs_a_drifted_rotation_and_keeps_translation():
     assert np.allclose(repaired[:3, :3], T[:3, :3], atol=5e-3)
     assert np.array_equal(repaired[:3, 3], T[:3, 3])
     assert np.allclose(se3.nearest_pose(T), T, atol=1e-14)
+
+
+def test_se3_left_jacobian_stays_accurate_at_small_angles():
+    """Continuous down to phi = 0 (no cancellation in the closed form): within O(|rho| |phi|)."""
+    rho, axis = np.array([0.3, -1.2, 2.0]), np.array([1.0, 2.0, 2.0]) / 3.0
+    at_zero = se3_left_jacobian(np.concatenate([rho, np.zeros(3)]))
+    assert np.allclose(at_zero[:3, 3:], 0.5 * se3.hat(rho))
+    for angle in (1e-3, 1e-5, 1e-7):
+        xi = np.concatenate([rho, angle * axis])
+        assert np.abs(se3_left_jacobian(xi) - at_zero).max() < 2.0 * angle * (1.0 + np.linalg.norm(rho))

@@ -19,6 +19,7 @@
   silently corrupt the dynamic-feature metrics.
 """
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +54,7 @@ def load(folder: Path) -> StereoSequence:
         source=calibration.path,
     )
     return StereoSequence(
-        name=f"kitti_{folder.name}",
+        name=_sequence_name(folder),
         layout=LAYOUT,
         root=folder,
         camera=camera,
@@ -63,6 +64,14 @@ def load(folder: Path) -> StereoSequence:
         groundtruth=_groundtruth(folder, timestamps),
         dynamic_mask_paths=_dynamic_mask_paths(folder, len(left_paths)),
     )
+
+
+def _sequence_name(folder: Path) -> str:
+    """``synth_<scenario>`` for what ``pld-slam synth`` wrote (it leaves synth.json), else ``kitti_<NN>``."""
+    try:
+        return f"synth_{json.loads((folder / 'synth.json').read_text())['scenario']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"kitti_{folder.name}"
 
 
 def _groundtruth_file(folder: Path) -> Path | None:

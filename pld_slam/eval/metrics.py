@@ -147,23 +147,36 @@ def fit_alignment(groundtruth: Trajectory, estimate: Trajectory, align: str = "s
 
     ``groundtruth`` and ``estimate`` are matched pose by pose (see `associate`); ``align``
     is ``se3`` (rotation and translation), ``sim3`` (also scale) or ``none``.
+
+    Positions on one line (a short straight drive, a vehicle standing still) leave the
+    rotation about that line free, and Umeyama refuses them; so do fewer than 3 poses.
+    We then anchor the estimate on the ground truth at the first matched pose (rotation
+    and position), the convention of trajectories that both start at identity, with the
+    scale (``sim3``) from the spread of the positions about their means.
     """
     _check_alignment_name(align)
     if align == "none":
         return IDENTITY
-    if len(estimate) < 3:
-        raise TrajectoryError(
-            f"only {len(estimate)} matched poses; {align} alignment needs 3 or more"
-        )
     try:
+        if len(estimate) < 3:
+            raise GeometryException("fewer than 3 poses")
         rotation, translation, scale = umeyama_alignment(
             estimate.positions.T, groundtruth.positions.T, with_scale=align == "sim3"
         )
-    except GeometryException as exc:
-        raise TrajectoryError(
-            f"cannot align the estimate to the ground truth ({exc}); "
-            "are all positions on one line?"
-        ) from None
+    except GeometryException:
+        return _first_pose_alignment(groundtruth, estimate, with_scale=align == "sim3")
+    return Alignment(rotation, translation, float(scale))
+
+
+def _first_pose_alignment(groundtruth: Trajectory, estimate: Trajectory, with_scale: bool) -> Alignment:
+    """The similarity taking the estimate's first pose onto the ground truth's first pose."""
+    rotation = groundtruth.poses[0, :3, :3] @ estimate.poses[0, :3, :3].T
+    scale = 1.0
+    if with_scale:
+        spread_gt = np.linalg.norm(groundtruth.positions - groundtruth.positions.mean(axis=0))
+        spread_est = np.linalg.norm(estimate.positions - estimate.positions.mean(axis=0))
+        scale = spread_gt / spread_est if spread_est > 0.0 else 1.0
+    translation = groundtruth.positions[0] - scale * rotation @ estimate.positions[0]
     return Alignment(rotation, translation, float(scale))
 
 

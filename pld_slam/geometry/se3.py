@@ -89,11 +89,16 @@ def se3_left_jacobian(xi: np.ndarray) -> np.ndarray:
     return J
 
 
+_COUPLING_SERIES_BELOW = 1e-2
+"""Angle [rad] below which `_translation_coupling` uses its series: the closed form's
+coefficients cancel catastrophically for small angles (``(theta^2/2 + cos - 1) / theta^4``)."""
+
+
 def _translation_coupling(rho: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """The block ``Q(rho, phi)`` (3, 3) of the SE(3) left Jacobian; series below 1e-2 rad."""
     theta = np.linalg.norm(phi)
     R, P = hat(rho), hat(phi)
-    if theta < _SMALL_ANGLE:
+    if theta < _COUPLING_SERIES_BELOW:
         t2 = theta * theta
         c1, c2, c3 = 1 / 6 - t2 / 120, 1 / 24 - t2 / 720, 1 / 120 - t2 / 2520
     else:

@@ -1,0 +1,93 @@
+"""Accuracy and speed of tracking: one table over the real extracts and synthetic sequences.
+
+Runs the pipeline (as ``pld-slam run``) on every real extract found in ``$PLD_SLAM_DATA``
+(default ``../shared/data``) and on synthetic ``static`` and ``lowtexture`` sequences
+(lines on and off), and prints: sequence, variant, frames, failures, ATE RMSE, RPE
+(1 frame), median ms per frame of each stage, real-time factor.
+
+    python benchmarks/tracking.py [--frames-synthetic 100] [--out /tmp/pld_slam_bench]
+"""
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from pld_slam.config import load_config
+from pld_slam.datasets import open_sequence
+from pld_slam.eval.run_summary import summarise_run
+from pld_slam.synth import write_sequence
+from pld_slam.system import System
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+REAL_EXTRACTS = {
+    "kitti_odometry/sequences/06": "kitti.yaml",
+    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync": "kitti.yaml",
+    "euroc/V1_01_easy_static": "euroc.yaml",
+    "euroc/V1_01_easy_flight": "euroc.yaml",
+}
+STAGE_COLUMNS = ("frontend", "matching", "filters", "pose", "total")
+
+
+def run_row(folder: Path, config_name: str, variant: str, overrides: tuple[str, ...] = ()) -> dict:
+    """One table row: run the pipeline on ``folder`` and summarise it."""
+    sequence = open_sequence(folder)
+    config = load_config([CONFIGS / "default.yaml", CONFIGS / config_name], overrides)
+    system = System(sequence, config)
+    system.run()
+    summary = summarise_run(sequence, system.result, config)
+    row = {
+        "sequence": sequence.name,
+        "variant": variant,
+        "frames": summary["frames"],
+        "failures": len(summary["tracking_failures"]),
+        "ATE [m]": summary["ate_rmse_m"],
+        "RPE t [m]": summary["rpe_trans_rmse_m"],
+        "RPE R [deg]": summary["rpe_rot_rmse_deg"],
+    }
+    for stage in STAGE_COLUMNS:
+        row[f"{stage} ms"] = summary["timing_ms"][stage]["median"]
+    row["RTF"] = summary["real_time_factor"]
+    return row
+
+
+def real_rows(data_dir: Path) -> list[dict]:
+    """Rows for the real extracts present in ``data_dir`` (missing ones are reported and skipped)."""
+    rows = []
+    for relative, config_name in REAL_EXTRACTS.items():
+        folder = data_dir / relative
+        if not folder.is_dir():
+            print(f"skipped {folder}: not found (set PLD_SLAM_DATA)")
+            continue
+        rows.append(run_row(folder, config_name, "default"))
+    return rows
+
+
+def synthetic_rows(out: Path, n_frames: int) -> list[dict]:
+    """Rows for synthetic static and lowtexture sequences, lines on and off."""
+    rows = []
+    for scenario in ("static", "lowtexture"):
+        folder = out / scenario
+        write_sequence(folder, scenario, n_frames=n_frames, seed=0)
+        for lines in ("true", "false"):
+            rows.append(run_row(folder, "synthetic.yaml", f"lines={lines}", (f"lines.enabled={lines}",)))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames-synthetic", type=int, default=100)
+    parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "pld_slam_bench")
+    args = parser.parse_args()
+    data_dir = Path(os.environ.get("PLD_SLAM_DATA", REPO.parent / "shared" / "data"))
+    rows = real_rows(data_dir) + synthetic_rows(args.out, args.frames_synthetic)
+    table = pd.DataFrame(rows).round({"ATE [m]": 4, "RPE t [m]": 4, "RPE R [deg]": 4, "RTF": 2})
+    table = table.round({f"{stage} ms": 1 for stage in STAGE_COLUMNS})
+    print(table.to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()
