@@ -218,3 +218,14 @@ def test_kitti_keeps_a_corner_found_at_several_octaves_once(kitti):
     with_copies = detect_image_points(left, dataclasses.replace(KITTI_POINTS, min_separation_px=1))
     close = np.linalg.norm(with_copies.uv[:, None] - with_copies.uv[None], axis=2) < 1.0
     assert (close.sum() - len(with_copies.uv)) > 50  # without it, copies are common
+
+
+def test_best_matches_judges_rivals_by_euclidean_distance_in_2d():
+    # query 0: its second candidate is the same feature found 0.3 px lower (no rival);
+    # query 1: the second candidate is 3 px away (a rival with an equal distance).
+    query = np.array([0, 0, 1, 1])
+    train = np.array([0, 1, 2, 3])
+    distance = np.array([10, 10, 10, 10])
+    position = np.array([[100.0, 50.0], [100.0, 50.3], [200.0, 50.0], [203.0, 50.0]])
+    matches = best_matches(query, train, distance, position, max_distance=64, ratio=0.8)
+    assert matches.query.tolist() == [0]

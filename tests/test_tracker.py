@@ -151,6 +151,8 @@ def test_tracking_recovers_after_a_frame_without_features(sequence, features, de
     poses = np.array([t.T_w_c for t in tracked])
     # Frames before the failure are exactly those of the undisturbed run.
     assert np.array_equal(poses[:FAILED], default_run.trajectory().poses[:FAILED])
+    # Frame FAILED + 1 is matched against the featureless frame (a failed frame becomes the
+    # reference), so it is left out; from FAILED + 2 on every frame must be tracked again.
     assert [t.status for t in tracked[FAILED + 2 :]] == [TrackingStatus.TRACKED] * (N_FRAMES - FAILED - 2)
     assert position_errors(sequence, poses).max() < 0.4
 
@@ -166,3 +168,11 @@ def test_a_skipped_frame_keeps_the_reference_so_the_next_frame_is_tracked(sequen
     assert [t.status for t in after] == [TrackingStatus.TRACKED] * len(after)
     poses = np.array([t.T_w_c for t in before + [skipped] + after])
     assert position_errors(sequence, poses).max() < 0.4
+
+
+def test_the_frame_after_a_featureless_frame_is_tracked(sequence, features):
+    """A blank frame fails alone: it does not become the reference of the next frame."""
+    frames = features[:FAILED] + [no_features()] + features[FAILED + 1 :]
+    tracked = track_all(sequence, frames)
+    assert tracked[FAILED].status is TrackingStatus.LOST
+    assert tracked[FAILED + 1].status is TrackingStatus.TRACKED

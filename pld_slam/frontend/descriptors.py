@@ -57,10 +57,10 @@ def best_matches(
         Candidate pairs (query index, train index), indices >= 0, in any order.
     distance : (P,) int64
         Hamming distance of each pair.
-    position : (P,) float64
-        Where each candidate lies along the search direction (e.g. its right-image column),
-        in units of the smallest gap between two distinct features. A candidate is a rival
-        of the best only when it lies more than 1 unit away from it, so that the same
+    position : (P,) or (P, D) float64
+        Where each candidate lies (e.g. its right-image column, or its pixel), in units of
+        the smallest gap between two distinct features. A candidate is a rival of the best
+        only when it lies more than 1 unit (Euclidean) away from it, so that the same
         feature found twice (at two pyramid levels, say) does not make a match ambiguous.
     max_distance : int
         A best candidate farther than this is no match.
@@ -78,7 +78,9 @@ def best_matches(
     query, train, distance, position = query[order], train[order], distance[order], position[order]
     first = np.flatnonzero(np.diff(query, prepend=-1))
     group_size = np.diff(np.r_[first, query.size])
-    is_rival = np.abs(position - np.repeat(position[first], group_size)) > 1.0
+    gap = position - np.repeat(position[first], group_size, axis=0)
+    squared = gap**2 if gap.ndim == 1 else np.einsum("pd,pd->p", gap, gap)
+    is_rival = squared > 1.0
     no_rival = np.iinfo(np.int64).max
     second = np.minimum.reduceat(np.where(is_rival, distance, no_rival), first) if first.size else first
     best = distance[first]

@@ -26,10 +26,6 @@ from pld_slam.geometry.se3 import transform_points
 _MIN_DEPTH = 0.1
 """A predicted feature closer than this to the current camera [m] is not searched for."""
 
-_ROW_KEY = 8192.0
-"""Pixels (u, v) map to the scalar ``u + _ROW_KEY * v``: distinct pixels of images up to
-8192 px wide lie more than 1 apart, which is what `best_matches` calls a rival."""
-
 _SCALE_FACTOR = 1.2
 """ORB pyramid scale between octaves, for octave-scaled search windows."""
 
@@ -59,17 +55,30 @@ def predict_pixels(camera: StereoCamera, T_c_p: np.ndarray, points_p: np.ndarray
 
 
 def _pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray, radius: np.ndarray):
-    """Candidate pairs ``(query, train)`` (P,) with ``|observed[train] - predicted[query]| <= radius[query]``."""
-    offsets = observed[None, :, :] - predicted[:, None, :]
-    within = (np.einsum("nmk,nmk->nm", offsets, offsets) <= (radius**2)[:, None]) & usable[:, None]
-    return np.nonzero(within)
+    """Candidate pairs ``(query, train)`` (P,) with ``|observed[train] - predicted[query]| <= radius[query]``.
+
+    Observed pixels are sorted by column; each usable query takes the ones whose column
+    lies within its radius (a ``searchsorted`` window), then keeps those within the
+    circle. Pairs come out sorted by query, then by observed column.
+    """
+    order = np.argsort(observed[:, 0], kind="stable")
+    columns = observed[order, 0]
+    queries = np.flatnonzero(usable)
+    low = np.searchsorted(columns, predicted[queries, 0] - radius[queries], side="left")
+    high = np.searchsorted(columns, predicted[queries, 0] + radius[queries], side="right")
+    counts = high - low
+    query = np.repeat(queries, counts)
+    offset_in_window = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    train = order[np.repeat(low, counts) + offset_in_window]
+    offsets = observed[train] - predicted[query]
+    within = np.einsum("pk,pk->p", offsets, offsets) <= radius[query] ** 2
+    return query[within], train[within]
 
 
 def _select_matches(query, train, prev_descriptors, curr_descriptors, train_positions, max_distance, ratio):
     """The unambiguous best candidate of each query, each train feature used once."""
     distance = hamming_distances(prev_descriptors[query], curr_descriptors[train])
-    position = train_positions[train, 0] + _ROW_KEY * train_positions[train, 1]
-    matches = unique_train(best_matches(query, train, distance, position, max_distance, ratio))
+    matches = unique_train(best_matches(query, train, distance, train_positions[train], max_distance, ratio))
     return FrameMatches(matches.query, matches.train)
 
 

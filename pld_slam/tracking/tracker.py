@@ -140,7 +140,8 @@ class Tracker:
         self._reference_age += 1
         if self._reference_age == 1:
             self._reference_inliers = inliers
-        if not tracked or self._reference_is_worn(inliers):
+        renew = self._reference_is_worn(inliers) if tracked else self._can_be_reference(features)
+        if renew:
             self._set_reference(features, T_w_c)
         status = TrackingStatus.TRACKED if tracked else TrackingStatus.LOST
         return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps)
@@ -157,10 +158,16 @@ class Tracker:
         """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
 
         After a failure the reference is the failed frame itself (at its motion-model
-        pose): tracking goes on from the newest features, which is how it recovers.
+        pose) if it has features enough to be tracked against (`_can_be_reference`):
+        tracking goes on from the newest features, which is how it recovers from a wrong
+        prediction. A frame without them (blank, blinded) keeps the old reference.
         """
         self._reference, self._T_w_r = features, T_w_c
         self._reference_age, self._reference_inliers = 0, 0
+
+    def _can_be_reference(self, features: StereoFeatures) -> bool:
+        """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
+        return len(features.points) + len(features.lines) >= 2 * self._config.tracking.min_inliers
 
     def _reference_is_worn(self, inliers: int) -> bool:
         """Whether the reference is old, or keeps too few of its first inliers."""
