@@ -11,15 +11,14 @@ from pld_slam.datasets import open_sequence
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.frontend.lines import (
     detect_image_lines,
-    direction_difference,
     endpoint_disparities,
     match_stereo_lines,
     near_horizontal,
     row_overlap,
-    segment_angles,
 )
 from pld_slam.frontend.points import disparity_limits
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.segments import oriented_angle_differences, segment_directions
 
 CAMERA = StereoCamera(fx=500.0, fy=500.0, cx=320.0, cy=240.0, baseline=0.1, width=640, height=480)
 SUPERSAMPLING = 8
@@ -37,7 +36,10 @@ def test_near_horizontal_uses_the_angle_from_the_image_rows():
 def test_direction_difference_compares_oriented_directions():
     left = np.array([[[0, 0], [0, 10]]], float)
     right = np.array([[[5, 0], [6, 10]], [[0, 10], [0, 0]]], float)
-    np.testing.assert_allclose(direction_difference(left, right), [[np.arctan(0.1), np.pi]])
+    differences = oriented_angle_differences(
+        segment_directions(left.reshape(-1, 4))[:, None], segment_directions(right.reshape(-1, 4))[None, :]
+    )
+    np.testing.assert_allclose(differences, [[np.arctan(0.1), np.pi]])
 
 
 def test_row_overlap_is_relative_to_the_shorter_row_range():
@@ -126,7 +128,7 @@ def test_near_horizontal_edges_are_dropped_and_upright_ones_kept():
     raw = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, config.lsd_scale).detect(left)[0].reshape(-1, 2, 2)
     assert near_horizontal(raw, config.min_angle_from_horizontal).sum() >= 2  # the top and bottom edges
     lines = stereo_lines(left, right, config)
-    angles = np.abs(segment_angles(lines.endpoints.reshape(-1, 2, 2)))
+    angles = np.abs(segment_directions(lines.endpoints))
     assert len(lines) == 2
     np.testing.assert_allclose(angles, np.pi / 2, atol=0.01)
     np.testing.assert_allclose(lines.disparity, CAMERA.bf / 3.0, atol=0.1)

@@ -16,11 +16,9 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose, so3_exp, transform_points
 from pld_slam.tracking.matching import (
     FrameMatches,
-    angle_differences,
     match_lines,
     match_points,
     predict_pixels,
-    segment_directions,
 )
 
 CAMERA = StereoCamera(fx=192.0, fy=192.0, cx=160.0, cy=120.0, baseline=0.5, width=320, height=240)
@@ -333,16 +331,3 @@ def test_a_line_with_an_endpoint_behind_the_current_camera_is_not_searched(line_
 
 
 # --- angles ---------------------------------------------------------------------------
-
-
-def test_segment_directions_are_oriented_from_start_to_end():
-    segments = np.array([[0, 0, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0], [0, 1, 0, 0]], dtype=float)
-    np.testing.assert_allclose(segment_directions(segments), [0.0, np.pi / 2, np.pi, -np.pi / 2])
-
-
-def test_angle_differences_wrap_around_to_at_most_pi():
-    a = np.array([np.pi - 0.1, -np.pi + 0.05, 0.0, 0.0, 3.0, 0.3])
-    b = np.array([-np.pi + 0.1, np.pi - 0.05, 2.0 * np.pi, np.pi, -3.0, -0.3])
-    expected = np.array([0.2, 0.1, 0.0, np.pi, 2.0 * np.pi - 6.0, 0.6])
-    np.testing.assert_allclose(angle_differences(a, b), expected, atol=1e-12)
-    np.testing.assert_allclose(angle_differences(b, a), expected, atol=1e-12)

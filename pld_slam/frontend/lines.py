@@ -41,6 +41,7 @@ from pld_slam.config import LinesConfig
 from pld_slam.frontend.descriptors import DESCRIPTOR_BYTES, best_matches, hamming_distances, unique_train
 from pld_slam.frontend.points import disparity_limits
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.segments import oriented_angle_differences, segment_directions
 
 
 @dataclass(frozen=True)
@@ -107,12 +108,6 @@ def detect_image_lines(image: np.ndarray, config: LinesConfig) -> ImageLines:
 def segment_lengths(segments: np.ndarray) -> np.ndarray:
     """Length (M,) [px] of segments (M, 2, 2)."""
     return np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
-
-
-def segment_angles(segments: np.ndarray) -> np.ndarray:
-    """Direction (M,) [rad, -pi..pi] of segments (M, 2, 2) from start to end, from the +u axis."""
-    delta = segments[:, 1] - segments[:, 0]
-    return np.arctan2(delta[:, 1], delta[:, 0])
 
 
 def near_horizontal(segments: np.ndarray, min_angle: float) -> np.ndarray:
@@ -185,12 +180,6 @@ def row_overlap(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return shared / shorter
 
 
-def direction_difference(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Absolute difference (L, R) [rad, 0..pi] between the oriented directions of segments."""
-    difference = segment_angles(left)[:, None] - segment_angles(right)[None, :]
-    return np.abs((difference + np.pi) % (2.0 * np.pi) - np.pi)
-
-
 def endpoint_disparities(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """Disparities (L, R, 2) [px] of every left segment's two endpoints (L, 2, 2) against the
     infinite line of every right segment (R, 2, 2), taken at the endpoints' rows."""
@@ -205,7 +194,10 @@ def match_stereo_lines(left: ImageLines, right: ImageLines, camera: StereoCamera
     d_min, d_max = disparity_limits(camera, config.min_depth_baselines, config.max_depth_baselines)
     disparity = endpoint_disparities(left.segments, right.segments)
     candidate = (
-        (direction_difference(left.segments, right.segments) <= config.stereo_max_angle_difference)
+        (oriented_angle_differences(
+            segment_directions(left.segments.reshape(-1, 4))[:, None],
+            segment_directions(right.segments.reshape(-1, 4))[None, :],
+        ) <= config.stereo_max_angle_difference)
         & (row_overlap(left.segments, right.segments) >= config.stereo_min_row_overlap)
         & np.all((disparity >= d_min) & (disparity <= d_max), axis=2)
     )

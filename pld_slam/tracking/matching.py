@@ -22,6 +22,7 @@ from pld_slam.frontend.lines import StereoLines
 from pld_slam.frontend.points import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
+from pld_slam.geometry.segments import oriented_angle_differences, segment_directions, segment_midpoints
 
 _MIN_DEPTH = 0.1
 """A predicted feature closer than this to the current camera [m] is not searched for."""
@@ -113,16 +114,6 @@ def match_points(
     )
 
 
-def segment_directions(endpoints: np.ndarray) -> np.ndarray:
-    """Oriented direction angles (M,) [rad] of segments (M, 4) ``(u_s, v_s, u_e, v_e)``."""
-    return np.arctan2(endpoints[:, 3] - endpoints[:, 1], endpoints[:, 2] - endpoints[:, 0])
-
-
-def angle_differences(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Absolute differences of oriented angles, wrapped to [0, pi] [rad]."""
-    return np.abs((a - b + np.pi) % (2.0 * np.pi) - np.pi)
-
-
 def match_lines(
     camera: StereoCamera,
     T_c_p: np.ndarray,
@@ -146,10 +137,12 @@ def match_lines(
     ends, end_in_front = predict_pixels(camera, T_c_p, previous.endpoints_c[:, 1])
     predicted = np.column_stack([starts, ends])
     usable = start_in_front & end_in_front
-    midpoints = 0.5 * (current.endpoints[:, :2] + current.endpoints[:, 2:])
+    midpoints = segment_midpoints(current.endpoints)
     radius = np.full(len(previous), radius_px)
     query, train = _pairs_within(0.5 * (starts + ends), usable, midpoints, radius)
-    turn = angle_differences(segment_directions(predicted)[query], segment_directions(current.endpoints)[train])
+    turn = oriented_angle_differences(
+        segment_directions(predicted)[query], segment_directions(current.endpoints)[train]
+    )
     query, train = query[turn <= max_angle_change], train[turn <= max_angle_change]
     return _select_matches(
         query, train, previous.descriptors, current.descriptors, midpoints, max_distance, ratio

@@ -115,6 +115,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pld_slam.config import FiltersConfig
+from pld_slam.geometry.segments import segment_directions, segment_midpoints, unoriented_angle_differences
 
 POINT_MIN_DEVIATION_PX = 3.0
 """A point match whose grid_cval deviation is below this [px] is never an outlier."""
@@ -238,11 +239,6 @@ def point_grid_filter(uv_prev: np.ndarray, uv_curr: np.ndarray, config: FiltersC
 # --- lines -------------------------------------------------------------------------------
 
 
-def segment_midpoints(endpoints: np.ndarray) -> np.ndarray:
-    """Midpoints (M, 2) [px] of segments ``(u_s, v_s, u_e, v_e)`` (M, 4)."""
-    return 0.5 * (endpoints[:, :2] + endpoints[:, 2:])
-
-
 def local_line_groups(endpoints: np.ndarray) -> np.ndarray:
     """Local line group (LLG) label (M,) int of each segment ``(u_s, v_s, u_e, v_e)`` (M, 4) [px].
 
@@ -260,12 +256,7 @@ def local_line_groups(endpoints: np.ndarray) -> np.ndarray:
 
 def angle_changes(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray) -> np.ndarray:
     """Direction change (M,) [rad, 0..pi/2] of matched segments (M, 4), modulo pi."""
-    delta_prev = endpoints_prev[:, 2:] - endpoints_prev[:, :2]
-    delta_curr = endpoints_curr[:, 2:] - endpoints_curr[:, :2]
-    change = np.mod(
-        np.arctan2(delta_curr[:, 1], delta_curr[:, 0]) - np.arctan2(delta_prev[:, 1], delta_prev[:, 0]), np.pi
-    )
-    return np.minimum(change, np.pi - change)
+    return unoriented_angle_differences(segment_directions(endpoints_curr), segment_directions(endpoints_prev))
 
 
 def midpoint_shifts(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray) -> np.ndarray:
