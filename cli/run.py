@@ -7,10 +7,12 @@ import click
 from tqdm import tqdm
 
 from pld_slam.config import load_config
-from pld_slam.datasets import open_sequence
+from pld_slam.datasets import StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
+from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.run_output import write_run_outputs
 from pld_slam.system import STAGES, System
+from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam_cli.config import config_files_option, set_option
 
 
@@ -29,7 +31,13 @@ def format_run_table(summary: dict) -> str:
         ("RPE trans / rot (1 frame)", number(summary["rpe_trans_rmse_m"], "{:.4f}", "m")
          + " / " + number(summary["rpe_rot_rmse_deg"], "{:.4f}", "deg")),
         ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")),
+        ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
     ]
+    for kind in ("points", "lines"):
+        quality = summary["dynamic"][kind]
+        if quality["recall"] is not None or quality["precision"] is not None:
+            rows.append((f"dynamic {kind} P / R", number(quality["precision"], "{:.2f}", "")
+                         + " / " + number(quality["recall"], "{:.2f}", "")))
     for stage in STAGES:
         timing = summary["timing_ms"].get(stage)
         if timing:
@@ -37,11 +45,26 @@ def format_run_table(summary: dict) -> str:
     return "\n".join(f"{label:<28}{value}" for label, value in rows)
 
 
-def run_and_write(sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None) -> dict:
+def overlay_writer(folder: Path, sequence: StereoSequence):
+    """A `System` observer writing each frame's dynamic-label overlay as ``folder/NNNNNN.png``."""
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def write(frame: StereoFrame, tracked: TrackedFrame) -> None:
+        if tracked.dynamic is not None:
+            path = folder / f"{frame.index:06d}.png"
+            write_dynamic_overlay(path, frame.left, tracked.dynamic, sequence.dynamic_mask(frame.index))
+
+    return write
+
+
+def run_and_write(
+    sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None, save_dynamic: Path | None = None
+) -> dict:
     """Run the pipeline and write its files; on Ctrl-C or an error the files still get written."""
     config = load_config(config_paths, overrides)
     sequence = open_sequence(sequence_dir)
-    system = System(sequence, config)
+    observer = None if save_dynamic is None else overlay_writer(save_dynamic, sequence)
+    system = System(sequence, config, observer)
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):
@@ -63,8 +86,10 @@ def run_and_write(sequence_dir: Path, out: Path, config_paths, overrides, max_fr
               help="Output folder [default: runs/<sequence name>].")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Process only the first N frames.")
 @click.option("--json", "as_json", is_flag=True, help="Print summary.json instead of a table.")
+@click.option("--save-dynamic", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Write each frame's features, coloured static (green) / dynamic (red), as PNGs here.")
 def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, max_frames: int | None,
-                as_json: bool) -> None:
+                as_json: bool, save_dynamic: Path | None) -> None:
     """Run PLD-SLAM on the stereo sequence in SEQUENCE_DIR (KITTI, KITTI raw, EuRoC or generic).
 
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
@@ -73,5 +98,5 @@ def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, m
     still writes the trajectory so far.
     """
     out = out if out is not None else Path("runs") / open_sequence(sequence_dir).name
-    summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames)
+    summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")

@@ -152,6 +152,14 @@ class DynamicConfig:
 
     grid: bool = _param(True, "dynamic grid: drop points in cells that disagree with the motion model")
     llg: bool = _param(True, "dynamic LLG: drop lines in groups that disagree with the motion model")
+    error_ratio: float = _param(
+        4.0, "a cell / LLG is dynamic when its RMS prediction error exceeds this times the frame's median", 1.0
+    )
+    min_error_px: float = _param(3.0, "... and exceeds this many pixels (noise never counts as motion)", 0.0)
+    min_cell_matches: int = _param(2, "matches a grid cell needs to be judged", 1)
+    member_ratio: float = _param(
+        0.7, "a feature of a dynamic cell / LLG is dynamic when its own error exceeds this times the threshold", 0.0
+    )
 
 
 @dataclass(frozen=True)

@@ -13,13 +13,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pld_slam.config import Config
-from pld_slam.datasets import StereoSequence
+from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import DatasetError
+from pld_slam.eval.dynamic_labels import LabelCounts, label_counts, lines_on_mask, points_on_mask
 from pld_slam.frontend import extract_stereo_features
-from pld_slam.tracking.tracker import Tracker, TrackingCounts, TrackingStatus
+from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
-STAGES = ("load", "frontend", "matching", "filters", "pose", "total")
+STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "total")
 """Timed stages of one frame, in order; ``total`` is the frame's whole wall time."""
 
 
@@ -36,6 +38,8 @@ class FrameRecord:
     stage_ms : wall time per stage [ms] (keys from `STAGES`).
     n_points, n_lines : stereo points and lines the front end found.
     skipped_reason : why the frame's images could not be used, or None.
+    dynamic_points, dynamic_lines : label counts of the matched points and lines against
+        the sequence's moving-object masks (synthetic sequences), or None without masks.
     """
 
     index: int
@@ -47,6 +51,8 @@ class FrameRecord:
     n_points: int = 0
     n_lines: int = 0
     skipped_reason: str | None = None
+    dynamic_points: LabelCounts | None = None
+    dynamic_lines: LabelCounts | None = None
 
 
 @dataclass
@@ -65,14 +71,19 @@ class RunResult:
         )
 
 
+FrameObserver = Callable[[StereoFrame, TrackedFrame], None]
+"""Called with each frame that had images and what tracking made of it (e.g. to draw overlays)."""
+
+
 class System:
     """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame."""
 
-    def __init__(self, sequence: StereoSequence, config: Config) -> None:
+    def __init__(self, sequence: StereoSequence, config: Config, observer: FrameObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
         self.tracker = Tracker(sequence.camera, config)
         self.result = RunResult()
+        self._observer = observer
 
     def process_frame(self, index: int) -> FrameRecord:
         """Load, extract and track frame ``index``; an unreadable frame is skipped, not fatal.
@@ -99,9 +110,13 @@ class System:
         tracked = self.tracker.track(features)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
         stage_ms["total"] = _ms_since(start)
+        point_counts, line_counts = self._dynamic_label_counts(index, tracked.dynamic)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
-                             n_points=len(features.points), n_lines=len(features.lines))
+                             n_points=len(features.points), n_lines=len(features.lines),
+                             dynamic_points=point_counts, dynamic_lines=line_counts)
         self._add(record, start)
+        if self._observer is not None:
+            self._observer(frame, tracked)
         return record
 
     def run(self, max_frames: int | None = None,
@@ -123,6 +138,20 @@ class System:
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
         return self.result
+
+    def _dynamic_label_counts(
+        self, index: int, labels: DynamicLabels | None
+    ) -> tuple[LabelCounts | None, LabelCounts | None]:
+        """Dynamic labels of frame ``index`` against its moving-object mask, when the sequence has masks."""
+        mask = self.sequence.dynamic_mask(index)
+        if mask is None:
+            return None, None
+        if labels is None:
+            return LabelCounts(), LabelCounts()
+        return (
+            label_counts(labels.point_dynamic, points_on_mask(labels.point_uv, mask)),
+            label_counts(labels.line_dynamic, lines_on_mask(labels.line_segments, mask)),
+        )
 
     def _add(self, record: FrameRecord, start: float) -> None:
         self.result.records.append(record)

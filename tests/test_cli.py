@@ -182,3 +182,14 @@ def test_demo_generates_a_sequence_and_prints_accuracy_and_speed(tmp_path):
     assert "ATE RMSE" in result.output and "real-time factor" in result.output
     summary = json.loads((tmp_path / "demo" / "run" / "summary.json").read_text())
     assert summary["frames"] == 8 and summary["ate_rmse_m"] < 0.1
+
+
+def test_run_reports_dynamic_labels_and_saves_overlays(synthetic_sequence, tmp_path):
+    overlays = tmp_path / "overlays"
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--save-dynamic", overlays)
+    assert result.exit_code == 0, result.output
+    assert "marked dynamic" in result.output
+    assert sorted(path.name for path in overlays.iterdir()) == [f"{i:06d}.png" for i in range(1, 6)]
+    dynamic = json.loads((tmp_path / "run" / "summary.json").read_text())["dynamic"]
+    assert len(dynamic["per_frame"]) == 6
+    assert dynamic["points"]["on_moving_objects"] > 0  # the synthetic sequence has masks

@@ -25,7 +25,7 @@ from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 12
 ACCURACY_KEYS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched")
-TRACKING_STAGES = {"matching", "filters", "pose"}
+TRACKING_STAGES = {"matching", "filters", "pose", "dynamic"}
 
 
 @pytest.fixture(scope="module")

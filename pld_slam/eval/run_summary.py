@@ -10,6 +10,7 @@ import numpy as np
 from pld_slam.config import Config, config_to_dict
 from pld_slam.datasets import StereoSequence
 from pld_slam.errors import TrajectoryError
+from pld_slam.eval.dynamic_labels import LabelCounts
 from pld_slam.eval.metrics import EvalResult, evaluate
 from pld_slam.system import STAGES, RunResult
 from pld_slam.tracking.tracker import TrackingStatus
@@ -50,6 +51,47 @@ def accuracy(groundtruth: Trajectory | None, estimate: Trajectory) -> dict[str, 
         return dict.fromkeys(_ACCURACY_KEYS)
 
 
+def dynamic_summary(result: RunResult) -> dict:
+    """Features marked dynamic per frame, and (with masks) precision and recall of the labels.
+
+    ``per_frame`` lists, for every frame, how many matched points and lines were marked
+    dynamic and how many were matched; ``points`` / ``lines`` hold precision and recall
+    over the whole run against the moving-object masks, null without masks.
+    """
+    records = result.records
+    per_frame = [
+        {
+            "index": r.index,
+            "points": r.counts.dynamic_points,
+            "lines": r.counts.dynamic_lines,
+            "matched_points": r.counts.points_after_filter,
+            "matched_lines": r.counts.lines_after_filter,
+        }
+        for r in records
+    ]
+    marked = sum(f["points"] + f["lines"] for f in per_frame)
+    matched = sum(f["matched_points"] + f["matched_lines"] for f in per_frame)
+    return {
+        "marked_fraction": marked / matched if matched else None,
+        "points": _label_quality([r.dynamic_points for r in records]),
+        "lines": _label_quality([r.dynamic_lines for r in records]),
+        "per_frame": per_frame,
+    }
+
+
+def _label_quality(per_frame: list[LabelCounts | None]) -> dict[str, float | int | None]:
+    """Precision, recall and counts of dynamic labels summed over frames; nulls without masks."""
+    if not per_frame or any(counts is None for counts in per_frame):
+        return {"precision": None, "recall": None, "flagged": None, "on_moving_objects": None}
+    total = sum(per_frame, LabelCounts())
+    return {
+        "precision": total.precision,
+        "recall": total.recall,
+        "flagged": total.true_positive + total.false_positive,
+        "on_moving_objects": total.true_positive + total.false_negative,
+    }
+
+
 def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -> dict:
     """JSON-ready summary of a run on ``sequence`` (see the module docstring)."""
     records = result.records
@@ -74,5 +116,6 @@ def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -
             "point_inliers": median([r.counts.point_inliers for r in records[1:]]),
             "line_inliers": median([r.counts.line_inliers for r in records[1:]]),
         },
+        "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
     }

@@ -159,12 +159,15 @@ def outlying(values: np.ndarray, references: np.ndarray, factor: float, floor: f
 # --- points ------------------------------------------------------------------------------
 
 
-def grid_cells(uv: np.ndarray, cell_width: float, cell_height: float) -> np.ndarray:
-    """Grid cell (N,) of pixels ``uv`` (N, 2), as labels 0..C-1 of the C occupied cells.
+def cell_coordinates(uv: np.ndarray, cell_width: float, cell_height: float) -> np.ndarray:
+    """Grid cell (column, row) (N, 2) int of pixels ``uv`` (N, 2); cells of ``cell_width`` x
+    ``cell_height`` [px], the first one at the image origin."""
+    return np.floor(uv / np.array([cell_width, cell_height])).astype(np.int64)
 
-    Cells are ``cell_width`` x ``cell_height`` [px], the first one at the image origin.
-    """
-    cell = np.floor(uv / np.array([cell_width, cell_height])).astype(np.int64)
+
+def grid_cells(uv: np.ndarray, cell_width: float, cell_height: float) -> np.ndarray:
+    """Grid cell (N,) of pixels ``uv`` (N, 2), as labels 0..C-1 of the C occupied cells (`cell_coordinates`)."""
+    cell = cell_coordinates(uv, cell_width, cell_height)
     return np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1)
 
 
@@ -247,11 +250,19 @@ def local_line_groups(endpoints: np.ndarray) -> np.ndarray:
     the LLGs are the connected components of these links, labelled 0..G-1. A segment
     overlapping no other forms an LLG of its own.
     """
+    return connected_components(csr_matrix(overlapping_domains(endpoints)), directed=False)[1]
+
+
+def overlapping_domains(endpoints: np.ndarray) -> np.ndarray:
+    """(M, M) bool: whether the circular domains of segments (M, 4) overlap (a segment overlaps itself).
+
+    A domain is centred at the segment's midpoint with its length as diameter; two overlap
+    when their midpoint distance is below the sum of the radii.
+    """
     midpoints = segment_midpoints(endpoints)
     radii = 0.5 * np.linalg.norm(endpoints[:, 2:] - endpoints[:, :2], axis=1)
     distances = np.linalg.norm(midpoints[:, None] - midpoints[None], axis=2)
-    overlapping = distances < radii[:, None] + radii[None]
-    return connected_components(csr_matrix(overlapping), directed=False)[1]
+    return distances < radii[:, None] + radii[None]
 
 
 def angle_changes(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray) -> np.ndarray:

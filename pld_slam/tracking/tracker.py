@@ -3,7 +3,8 @@
 The tracker owns a reference frame's stereo features and the constant-velocity motion
 model. For each new frame it predicts the pose from the last inter-frame motion, matches
 the reference features to the current ones around their predictions (`matching`),
-removes mismatches with the paper's two filters (`outliers`), and estimates the pose
+removes mismatches with the paper's two filters (`outliers`), leaves out the features that
+disagree with the motion model (`dynamic`: dynamic grid and dynamic LLG), and estimates the pose
 relative to the reference by pose-only least squares over the point reprojection and line
 vertical/horizontal errors (`pld_slam.optim.pose_only`), rejecting outliers over rounds.
 
@@ -25,6 +26,7 @@ recovers as soon as a frame has enough matches. The first frame has no previous 
 defines the world (``T_w_c = I``).
 """
 
+import dataclasses
 import enum
 import time
 from dataclasses import dataclass, field
@@ -38,12 +40,15 @@ from pld_slam.geometry.se3 import inverse, nearest_pose
 from pld_slam.optim.line_reprojection import endpoints_away_from_border
 from pld_slam.optim.pose_only import (
     LineObservations,
+    ObservationMasks,
     PointObservations,
     PoseOnlyOptions,
     PoseOnlyResult,
+    optimize_pose,
     optimize_pose_rejecting_outliers,
 )
-from pld_slam.tracking.matching import FrameMatches, match_lines, match_points
+from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg
+from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_pixels
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 
 _OCTAVE_SCALE = 1.2
@@ -69,6 +74,8 @@ class TrackingCounts:
     line_matches: int = 0
     points_after_filter: int = 0
     lines_after_filter: int = 0
+    dynamic_points: int = 0
+    dynamic_lines: int = 0
     point_inliers: int = 0
     line_inliers: int = 0
 
@@ -82,8 +89,10 @@ class TrackedFrame:
     T_w_c : (4, 4) camera-to-world pose of the frame.
     T_c_p : (4, 4) motion from the previous camera to this one (identity for the first).
     status : how the pose was obtained.
-    counts : matches, filter survivors and inliers.
-    stage_ms : wall time of each tracking stage [ms]: ``matching``, ``filters``, ``pose``.
+    counts : matches, filter survivors, dynamic features and inliers.
+    stage_ms : wall time of each tracking stage [ms]: ``matching``, ``filters``, ``dynamic``, ``pose``.
+    dynamic : the matched features of this frame and their dynamic labels (None when
+        nothing was matched: the first frame, a skipped one).
     """
 
     T_w_c: np.ndarray
@@ -91,12 +100,21 @@ class TrackedFrame:
     status: TrackingStatus
     counts: TrackingCounts = TrackingCounts()
     stage_ms: dict[str, float] = field(default_factory=dict)
+    dynamic: DynamicLabels | None = None
 
 
 @dataclass(frozen=True)
 class _FrameMatches:
     points: FrameMatches
     lines: FrameMatches
+
+
+@dataclass(frozen=True)
+class _DynamicIndices:
+    """Indices of a frame's points (P,) and lines (L,) found dynamic."""
+
+    points: np.ndarray
+    lines: np.ndarray
 
 
 class Tracker:
@@ -127,9 +145,18 @@ class Tracker:
         clock.lap("matching")
         kept = self._filter(self._reference, features, matched)
         clock.lap("filters")
-        solution = self._solve(self._reference, features, kept, T_c_r_predicted)
+        points = _point_observations(self._reference, features, kept.points)
+        lines = _line_observations(self._camera, self._reference, features, kept.lines, self._config)
+        solution = optimize_pose_rejecting_outliers(
+            self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
+        )
         clock.lap("pose")
-        counts = _counts(matched, kept, solution)
+        labels = self._label_dynamic(self._reference, features, kept, solution)
+        self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
+        self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
+        solution = self._without_dynamic(solution, points, lines, labels)
+        clock.lap("dynamic")
+        counts = _counts(matched, kept, labels, solution)
         inliers = counts.point_inliers + counts.line_inliers
         tracked = solution.success and inliers >= self._config.tracking.min_inliers
         T_w_c = nearest_pose(
@@ -142,9 +169,10 @@ class Tracker:
             self._reference_inliers = inliers
         renew = self._reference_is_worn(inliers) if tracked else self._can_be_reference(features)
         if renew:
-            self._set_reference(features, T_w_c)
+            found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
+            self._set_reference(features, T_w_c, found)
         status = TrackingStatus.TRACKED if tracked else TrackingStatus.LOST
-        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps)
+        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels)
 
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
@@ -154,8 +182,13 @@ class Tracker:
         self._T_w_p = nearest_pose(self._T_w_p @ inverse(self._velocity))
         return TrackedFrame(self._T_w_p.copy(), self._velocity, TrackingStatus.LOST)
 
-    def _set_reference(self, features: StereoFeatures, T_w_c: np.ndarray) -> None:
+    def _set_reference(
+        self, features: StereoFeatures, T_w_c: np.ndarray, dynamic: _DynamicIndices | None = None
+    ) -> None:
         """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
+
+        ``dynamic`` lists the frame's features found dynamic: they stay known as dynamic
+        while it is the reference (`dynamic` module docstring).
 
         After a failure the reference is the failed frame itself (at its motion-model
         pose) if it has features enough to be tracked against (`_can_be_reference`):
@@ -164,6 +197,11 @@ class Tracker:
         """
         self._reference, self._T_w_r = features, T_w_c
         self._reference_age, self._reference_inliers = 0, 0
+        self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
+        self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)
+        if dynamic is not None:
+            self._seen_dynamic_points[dynamic.points] = True
+            self._seen_dynamic_lines[dynamic.lines] = True
 
     def _can_be_reference(self, features: StereoFeatures) -> bool:
         """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
@@ -214,17 +252,64 @@ class Tracker:
             lines = FrameMatches(lines.previous[keep], lines.current[keep])
         return _FrameMatches(points, lines)
 
-    def _solve(
-        self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches, T_c_r: np.ndarray
+    def _label_dynamic(
+        self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult
+    ) -> DynamicLabels:
+        """Dynamic labels of the matched features, predicted with the robustly fitted pose (`dynamic`).
+
+        Nothing is dynamic when both detectors are off or the fit failed.
+        """
+        config = self._config
+        point_uv = current.points.uv[matches.points.current]
+        segments = current.lines.endpoints[matches.lines.current]
+        labels = DynamicLabels.none(point_uv, segments)
+        if not solution.success:
+            return labels
+        if config.dynamic.grid:
+            points_r = reference.points.points_c[matches.points.previous]
+            predicted, _ = predict_pixels(self._camera, solution.T_c_w, points_r)
+            cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
+            octaves = np.column_stack(
+                [reference.points.octave[matches.points.previous], current.points.octave[matches.points.current]]
+            )
+            sigma = np.linalg.norm(_OCTAVE_SCALE ** octaves.astype(np.float64), axis=1)
+            seen = self._seen_dynamic_points[matches.points.previous]
+            dynamic_points = dynamic_grid(predicted, point_uv, sigma, cell_size, config.dynamic, seen)
+            labels = dataclasses.replace(labels, point_dynamic=dynamic_points)
+        if config.dynamic.llg:
+            endpoints_r = reference.lines.endpoints_c[matches.lines.previous]
+            starts, _ = predict_pixels(self._camera, solution.T_c_w, endpoints_r[:, 0])
+            ends, _ = predict_pixels(self._camera, solution.T_c_w, endpoints_r[:, 1])
+            seen = self._seen_dynamic_lines[matches.lines.previous]
+            dynamic_lines = dynamic_llg(np.column_stack([starts, ends]), segments, config.dynamic, seen)
+            labels = dataclasses.replace(labels, line_dynamic=dynamic_lines)
+        return labels
+
+    def _without_dynamic(
+        self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
     ) -> PoseOnlyResult:
-        """``T_c_r`` by pose-only least squares from the prediction, the reference camera playing the world."""
-        return optimize_pose_rejecting_outliers(
-            self._camera,
-            T_c_r,
-            points=_point_observations(reference, current, matches.points),
-            lines=_line_observations(self._camera, reference, current, matches.lines, self._config),
-            options=self._pose_options,
+        """``solution`` refined without the dynamic features: one plain least-squares solve
+        from it over its inliers less the dynamic ones (the first solve's robust loss and
+        rejection rounds have done the rest); ``solution`` itself when nothing is dynamic."""
+        if not (labels.point_dynamic.any() or labels.line_dynamic.any()):
+            return solution
+        include = ObservationMasks(
+            points=solution.inliers.points & ~labels.point_dynamic,
+            lines=solution.inliers.lines & ~labels.line_dynamic,
+            line_horizontal=solution.inliers.line_horizontal & ~labels.line_dynamic,
         )
+        refined = optimize_pose(
+            self._camera, solution.T_c_w, points=points, lines=lines, options=self._pose_options,
+            include=include, robust=False,
+        )
+        if not refined.success:
+            return solution
+        inliers = ObservationMasks(
+            refined.inliers.points & include.points,
+            refined.inliers.lines & include.lines,
+            refined.inliers.line_horizontal & include.line_horizontal,
+        )
+        return dataclasses.replace(refined, inliers=inliers)
 
 
 def _point_observations(reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches) -> PointObservations:
@@ -257,12 +342,16 @@ def _line_observations(
     )
 
 
-def _counts(matched: _FrameMatches, kept: _FrameMatches, solution: PoseOnlyResult) -> TrackingCounts:
+def _counts(
+    matched: _FrameMatches, kept: _FrameMatches, labels: DynamicLabels, solution: PoseOnlyResult
+) -> TrackingCounts:
     return TrackingCounts(
         point_matches=len(matched.points),
         line_matches=len(matched.lines),
         points_after_filter=len(kept.points),
         lines_after_filter=len(kept.lines),
+        dynamic_points=int(np.count_nonzero(labels.point_dynamic)),
+        dynamic_lines=int(np.count_nonzero(labels.line_dynamic)),
         point_inliers=int(np.count_nonzero(solution.inliers.points)),
         line_inliers=int(np.count_nonzero(solution.inliers.lines)),
     )

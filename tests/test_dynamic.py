@@ -1,0 +1,115 @@
+"""Dynamic grid and dynamic LLG: a planted moving object is flagged, the static scene is not."""
+
+import numpy as np
+import pytest
+
+from pld_slam.config import DynamicConfig
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import se3_exp, transform_points
+from pld_slam.tracking.dynamic import dynamic_grid, dynamic_llg, error_threshold, line_prediction_distances
+
+CAMERA = StereoCamera(fx=384.0, fy=384.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
+CELL = (64.0, 48.0)
+MOTION = se3_exp(np.array([0.05, 0.0, -0.8, 0.0, 0.01, 0.0]))
+"""Camera motion between the two frames, T_c_r: 0.8 m forward, a slight turn."""
+OBJECT = (slice(380, 560), slice(200, 330))
+"""Image region (u, v) where the moving object is: a car to the right."""
+
+
+def scene_points(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Reference-frame 3D points (N, 3) spread over the image, and whether each is on the object."""
+    uv = rng.uniform([10.0, 10.0], [630.0, 470.0], size=(400, 2))
+    depth = rng.uniform(6.0, 40.0, size=400)
+    on_object = (uv[:, 0] > OBJECT[0].start) & (uv[:, 0] < OBJECT[0].stop)
+    on_object &= (uv[:, 1] > OBJECT[1].start) & (uv[:, 1] < OBJECT[1].stop)
+    depth[on_object] = 8.0
+    return CAMERA.backproject(uv, depth), on_object
+
+
+def moved_and_observed(points_r: np.ndarray, on_object: np.ndarray, object_motion: np.ndarray, rng):
+    """Predicted (static-world) and detected current pixels, the object moved by ``object_motion`` [m]."""
+    predicted = CAMERA.project(transform_points(MOTION, points_r))
+    moved = points_r + on_object[:, None] * object_motion
+    detected = CAMERA.project(transform_points(MOTION, moved)) + rng.normal(0.0, 0.3, size=predicted.shape)
+    return predicted, detected
+
+
+def test_a_moving_car_is_flagged_and_the_static_points_are_not():
+    rng = np.random.default_rng(0)
+    points_r, on_object = scene_points(rng)
+    predicted, detected = moved_and_observed(points_r, on_object, np.array([-0.4, 0.0, 0.3]), rng)
+    flagged = dynamic_grid(predicted, detected, np.ones(len(detected)), CELL, DynamicConfig())
+    assert on_object.sum() > 20
+    assert np.array_equal(flagged, on_object)
+
+
+def test_a_static_scene_gives_no_dynamic_points():
+    rng = np.random.default_rng(1)
+    points_r, on_object = scene_points(rng)
+    predicted, detected = moved_and_observed(points_r, on_object, np.zeros(3), rng)
+    assert not dynamic_grid(predicted, detected, np.ones(len(detected)), CELL, DynamicConfig()).any()
+
+
+def test_a_lone_mismatch_flags_none_of_its_static_neighbours():
+    """A wrong match in a sparse cell may be marked itself (the pose leaves it out either
+    way), but its cell and the 8 around it stay static."""
+    rng = np.random.default_rng(2)
+    points_r, on_object = scene_points(rng)
+    predicted, detected = moved_and_observed(points_r, on_object, np.zeros(3), rng)
+    detected[0] += np.array([25.0, -10.0])  # one wrong match, no mover
+    flagged = dynamic_grid(predicted, detected, np.ones(len(detected)), CELL, DynamicConfig())
+    assert not flagged[1:].any()
+
+
+def test_errors_are_judged_in_units_of_each_points_sigma():
+    rng = np.random.default_rng(3)
+    points_r, on_object = scene_points(rng)
+    predicted, detected = moved_and_observed(points_r, on_object, np.array([-0.4, 0.0, 0.3]), rng)
+    coarse = np.where(on_object, 20.0, 1.0)  # the object's corners located to 20 px: no evidence
+    assert not dynamic_grid(predicted, detected, coarse, CELL, DynamicConfig()).any()
+
+
+def test_the_threshold_follows_the_frames_median_with_a_floor():
+    config = DynamicConfig(error_ratio=4.0, min_error_px=3.0)
+    assert error_threshold(np.array([0.2, 0.3, 0.4]), config) == 3.0
+    assert error_threshold(np.array([1.0, 2.0, 3.0]), config) == pytest.approx(8.0)
+    assert error_threshold(np.zeros(0), config) == np.inf
+
+
+def scene_segments(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Reference 3D segments (M, 2, 3): vertical edges of facades, and of the car; which are on the car."""
+    facade_u = np.linspace(20.0, 360.0, 12)
+    car_u = np.linspace(400.0, 540.0, 6)
+    u = np.concatenate([facade_u, car_u])
+    v0 = np.where(np.arange(len(u)) < len(facade_u), 60.0, 220.0)
+    v1 = v0 + np.where(np.arange(len(u)) < len(facade_u), 150.0, 90.0)
+    depth = np.where(np.arange(len(u)) < len(facade_u), rng.uniform(12.0, 20.0, len(u)), 8.0)
+    starts = CAMERA.backproject(np.column_stack([u, v0]), depth)
+    ends = CAMERA.backproject(np.column_stack([u + 3.0, v1]), depth)
+    on_car = np.arange(len(u)) >= len(facade_u)
+    return np.stack([starts, ends], axis=1), on_car, depth
+
+
+def project_segments(T: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    starts = CAMERA.project(transform_points(T, segments[:, 0]))
+    ends = CAMERA.project(transform_points(T, segments[:, 1]))
+    return np.column_stack([starts, ends])
+
+
+def test_a_moving_car_flags_its_line_group_and_not_the_facade():
+    rng = np.random.default_rng(4)
+    segments, on_car, _ = scene_segments(rng)
+    predicted = project_segments(MOTION, segments)
+    moved = segments + on_car[:, None, None] * np.array([-0.4, 0.0, 0.3])
+    detected = project_segments(MOTION, moved) + rng.normal(0.0, 0.3, size=predicted.shape)
+    assert np.array_equal(dynamic_llg(predicted, detected, DynamicConfig()), on_car)
+    static = project_segments(MOTION, segments) + rng.normal(0.0, 0.3, size=predicted.shape)
+    assert not dynamic_llg(predicted, static, DynamicConfig()).any()
+
+
+def test_line_distance_ignores_sliding_along_the_line():
+    detected = np.array([[100.0, 50.0, 100.0, 250.0]])
+    slid = np.array([[100.0, 80.0, 100.0, 200.0]])  # same line, detected shorter
+    shifted = np.array([[104.0, 50.0, 104.0, 250.0]])
+    assert line_prediction_distances(slid, detected) == pytest.approx([0.0])
+    assert line_prediction_distances(shifted, detected) == pytest.approx([4.0])
