@@ -29,7 +29,7 @@ REAL_EXTRACTS = {
     "euroc/V1_01_easy_static": "euroc.yaml",
     "euroc/V1_01_easy_flight": "euroc.yaml",
 }
-STAGE_COLUMNS = ("frontend", "matching", "filters", "pose", "total")
+STAGE_COLUMNS = ("frontend", "matching", "filters", "pose", "dynamic", "total")
 
 
 def run_row(folder: Path, config_name: str, variant: str, overrides: tuple[str, ...] = ()) -> dict:

@@ -1,12 +1,20 @@
 """Dynamic grid and dynamic LLG: a planted moving object is flagged, the static scene is not."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from pld_slam.config import DynamicConfig
+from pld_slam.config import DynamicConfig, load_config
+from pld_slam.datasets import open_sequence
+from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, transform_points
+from pld_slam.synth import write_sequence
+from pld_slam.system import System
 from pld_slam.tracking.dynamic import dynamic_grid, dynamic_llg, error_threshold, line_prediction_distances
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 CAMERA = StereoCamera(fx=384.0, fy=384.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 CELL = (64.0, 48.0)
@@ -113,3 +121,26 @@ def test_line_distance_ignores_sliding_along_the_line():
     shifted = np.array([[104.0, 50.0, 104.0, 250.0]])
     assert line_prediction_distances(slid, detected) == pytest.approx([0.0])
     assert line_prediction_distances(shifted, detected) == pytest.approx([4.0])
+
+
+@pytest.fixture(scope="module")
+def street_with_traffic(tmp_path_factory):
+    """20 frames of the synthetic ``dynamic`` street (640x480, seed 1), with its moving-object masks."""
+    folder = tmp_path_factory.mktemp("traffic") / "seq"
+    write_sequence(folder, "dynamic", n_frames=20, seed=1)
+    return folder
+
+
+def test_rendered_traffic_is_flagged_and_the_street_is_not(street_with_traffic):
+    """Over a real pipeline run: most flagged features lie on the moving vehicles and people.
+
+    Bounds from a measured run (points P 0.86 R 0.58, lines P 0.87 R 0.79), with margin.
+    """
+    sequence = open_sequence(street_with_traffic)
+    files = [CONFIGS / "default.yaml", CONFIGS / "synthetic.yaml"]
+    config = load_config(files)
+    dynamic = summarise_run(sequence, System(sequence, config).run(), config)["dynamic"]
+    assert dynamic["points"]["precision"] > 0.7 and dynamic["points"]["recall"] > 0.4
+    assert dynamic["lines"]["precision"] > 0.7 and dynamic["lines"]["recall"] > 0.6
+    off = load_config(files, ["dynamic.grid=false", "dynamic.llg=false"])
+    assert summarise_run(sequence, System(sequence, off).run(), off)["dynamic"]["marked_fraction"] == 0.0
