@@ -12,7 +12,7 @@ from pld_slam_cli.run import format_run_table, run_and_write
 @click.command("demo")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("pld_slam_demo"),
               show_default=True, help="Folder for the generated sequence (sequence/) and the run (run/).")
-@click.option("--scenario", type=click.Choice(SCENARIOS), default="static", show_default=True)
+@click.option("--scenario", type=click.Choice(SCENARIOS), default="dynamic", show_default=True)
 @click.option("--frames", type=click.IntRange(min=2), default=60, show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
 @set_option

@@ -35,7 +35,7 @@ def format_run_table(summary: dict) -> str:
     ]
     for kind in ("points", "lines"):
         quality = summary["dynamic"][kind]
-        if quality["recall"] is not None or quality["precision"] is not None:
+        if quality["on_moving_objects"]:
             rows.append((f"dynamic {kind} P / R", number(quality["precision"], "{:.2f}", "")
                          + " / " + number(quality["recall"], "{:.2f}", "")))
     for stage in STAGES:
