@@ -118,7 +118,7 @@ class _DynamicIndices:
 
 
 class Tracker:
-    """Frame-to-frame stereo point-line tracking with a constant-velocity motion model."""
+    """Stereo point-line tracking against a reference frame, with a constant-velocity motion model."""
 
     def __init__(self, camera: StereoCamera, config: Config) -> None:
         self._camera = camera
@@ -131,6 +131,8 @@ class Tracker:
         self._T_w_r = np.eye(4)
         self._reference_age = 0
         self._reference_inliers = 0
+        self._seen_dynamic_points = np.zeros(0, dtype=bool)
+        self._seen_dynamic_lines = np.zeros(0, dtype=bool)
         self._T_w_p = np.eye(4)
         self._velocity = np.eye(4)
 
@@ -152,18 +154,40 @@ class Tracker:
         )
         clock.lap("pose")
         labels = self._label_dynamic(self._reference, features, kept, solution)
-        self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
-        self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
         solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
         counts = _counts(matched, kept, labels, solution)
-        inliers = counts.point_inliers + counts.line_inliers
-        tracked = solution.success and inliers >= self._config.tracking.min_inliers
+        tracked = solution.success and counts.point_inliers + counts.line_inliers >= self._config.tracking.min_inliers
+        T_w_c, T_c_p = self._advance(solution, tracked)
+        self._update_reference(features, T_w_c, tracked, counts, kept, labels)
+        status = TrackingStatus.TRACKED if tracked else TrackingStatus.LOST
+        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels)
+
+    def _advance(self, solution: PoseOnlyResult, tracked: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's ``T_w_c`` (solved, or the motion model's when not tracked) and ``T_c_p``.
+
+        Both become the tracker's state: the last pose and the motion model.
+        """
         T_w_c = nearest_pose(
             self._T_w_r @ inverse(solution.T_c_w) if tracked else self._T_w_p @ inverse(self._velocity)
         )
         T_c_p = nearest_pose(inverse(T_w_c) @ self._T_w_p)
         self._velocity, self._T_w_p = T_c_p, T_w_c
+        return T_w_c, T_c_p
+
+    def _update_reference(
+        self,
+        features: StereoFeatures,
+        T_w_c: np.ndarray,
+        tracked: bool,
+        counts: TrackingCounts,
+        kept: _FrameMatches,
+        labels: DynamicLabels,
+    ) -> None:
+        """Record the dynamic features seen, age the reference, and renew it when worn or after a failure."""
+        self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
+        self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
+        inliers = counts.point_inliers + counts.line_inliers
         self._reference_age += 1
         if self._reference_age == 1:
             self._reference_inliers = inliers
@@ -171,8 +195,6 @@ class Tracker:
         if renew:
             found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
             self._set_reference(features, T_w_c, found)
-        status = TrackingStatus.TRACKED if tracked else TrackingStatus.LOST
-        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels)
 
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
