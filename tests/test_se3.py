@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from pld_slam.geometry import se3
-from pld_slam.geometry.se3 import hat_stack, inverse, se3_exp, se3_left_jacobian, se3_log
+from pld_slam.geometry.se3 import inverse, se3_exp, se3_left_jacobian, se3_log
 
 vectors = st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3).map(np.array)
 
@@ -65,12 +65,6 @@ def test_rotation_angle_and_transform_points():
     p = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
     expected = (T @ np.c_[p, np.ones(2)].T).T[:, :3]
     assert np.allclose(se3.transform_points(T, p), expected)
-
-
-def test_hat_stack_is_the_cross_product():
-    rng = np.random.default_rng(7)
-    w, v = rng.normal(size=(10, 3)), rng.normal(size=(10, 3))
-    assert np.allclose(np.einsum("nij,nj->ni", hat_stack(w), v), np.cross(w, v))
 
 
 @pytest.mark.parametrize("seed", range(3))

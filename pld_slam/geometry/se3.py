@@ -16,18 +16,6 @@ def hat(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
 
 
-def hat_stack(w: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrices (N, 3, 3) of N 3-vectors (N, 3): ``out[i] @ v == cross(w[i], v)``.
-
-    The stacked form of `hat`.
-    """
-    out = np.zeros((len(w), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -w[:, 2], w[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = w[:, 2], -w[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -w[:, 1], w[:, 0]
-    return out
-
-
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of a rotation vector ``phi`` (3,) [rad] (Rodrigues)."""
     phi = np.asarray(phi, dtype=np.float64)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import hat_stack, transform_points
+from pld_slam.geometry.se3 import transform_points
 
 MIN_DEPTH = 1e-3
 """Default smallest camera-frame depth [m] at which a point still projects."""
@@ -83,17 +83,6 @@ class PointReprojection:
     valid: np.ndarray
 
 
-def camera_point_pose_jacobian(p_c: np.ndarray) -> np.ndarray:
-    """Jacobian (N, 3, 6) ``[I, -hat(p_c)]`` of camera-frame points (N, 3) w.r.t. ``delta``.
-
-    The explicit matrix; `pose_jacobian_from_camera_gradient` applies it without building it.
-    """
-    jac = np.zeros((len(p_c), 3, 6))
-    jac[:, :, :3] = np.eye(3)
-    jac[:, :, 3:] = -hat_stack(p_c)
-    return jac
-
-
 def pose_jacobian_from_camera_gradient(p_c: np.ndarray, gradient: np.ndarray) -> np.ndarray:
     """Pose Jacobian (N, k, 6) of k functions of each camera-frame point, from their gradients.
 
@@ -105,8 +94,8 @@ def pose_jacobian_from_camera_gradient(p_c: np.ndarray, gradient: np.ndarray) ->
     Returns
     -------
     (N, k, 6) ``g @ [I, -hat(p_c)] = [g, p_c x g]``, the derivative w.r.t. the left
-    perturbation ``delta`` of ``T_c_w``. The cross-product form skips the (N, 3, 6)
-    matrix of `camera_point_pose_jacobian` and the batched product: measured 1.5x faster
+    perturbation ``delta`` of ``T_c_w``. The cross-product form skips building the
+    (N, 3, 6) matrices ``[I, -hat(p_c)]`` and their batched product: measured 1.5x faster
     for 700 points.
     """
     x, y, z = (p_c[:, i, None] for i in range(3))
