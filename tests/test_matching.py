@@ -27,6 +27,7 @@ T_C_P = make_pose(so3_exp(np.array([0.01, 0.05, -0.02])), np.array([0.1, -0.03, 
 
 POINT_RADIUS, LINE_RADIUS = 15.0, 30.0
 MAX_DISTANCE, RATIO, MAX_TURN = 64, 0.9, 0.2
+ORB_SCALE_FACTOR = 1.2
 FLIPPED_BITS = 6
 
 
@@ -110,7 +111,7 @@ def appended(current: StereoPoints, uv, descriptor: np.ndarray) -> StereoPoints:
 
 
 def match(previous, current, prior=T_C_P, radius=POINT_RADIUS, ratio=RATIO) -> FrameMatches:
-    return match_points(CAMERA, prior, previous, current, radius, MAX_DISTANCE, ratio)
+    return match_points(CAMERA, prior, previous, current, radius, ORB_SCALE_FACTOR, MAX_DISTANCE, ratio)
 
 
 # --- predict_pixels -------------------------------------------------------------------

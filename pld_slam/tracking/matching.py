@@ -27,9 +27,6 @@ from pld_slam.geometry.segments import oriented_angle_differences, segment_direc
 _MIN_DEPTH = 0.1
 """A predicted feature closer than this to the current camera [m] is not searched for."""
 
-_SCALE_FACTOR = 1.2
-"""ORB pyramid scale between octaves, for octave-scaled search windows."""
-
 
 @dataclass(frozen=True)
 class FrameMatches:
@@ -44,6 +41,16 @@ class FrameMatches:
     @classmethod
     def empty(cls) -> "FrameMatches":
         return cls(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+
+def predict_segments(
+    camera: StereoCamera, T_c_p: np.ndarray, endpoints_p: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Current-image segments (M, 4) of 3D segments (M, 2, 3) of the previous camera, and
+    which have both endpoints in front (M,)."""
+    starts, start_in_front = predict_pixels(camera, T_c_p, endpoints_p[:, 0])
+    ends, end_in_front = predict_pixels(camera, T_c_p, endpoints_p[:, 1])
+    return np.column_stack([starts, ends]), start_in_front & end_in_front
 
 
 def predict_pixels(camera: StereoCamera, T_c_p: np.ndarray, points_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -89,6 +96,7 @@ def match_points(
     previous: StereoPoints,
     current: StereoPoints,
     radius_px: float,
+    scale_factor: float,
     max_distance: int,
     ratio: float,
 ) -> FrameMatches:
@@ -101,13 +109,14 @@ def match_points(
     previous, current : stereo points of the two frames (``previous.points_c`` in the
         previous camera frame).
     radius_px : search window at octave 0 [px]; a point found at octave ``o`` in the
-        previous image is searched within ``radius_px * 1.2**o``.
+        previous image is searched within ``radius_px * scale_factor**o``.
+    scale_factor : ORB pyramid scale between octaves (``points.scale_factor``).
     max_distance, ratio : Hamming threshold [bits] and ratio test.
     """
     if len(previous) == 0 or len(current) == 0:
         return FrameMatches.empty()
     predicted, in_front = predict_pixels(camera, T_c_p, previous.points_c)
-    radius = radius_px * _SCALE_FACTOR ** previous.octave.astype(np.float64)
+    radius = radius_px * scale_factor ** previous.octave.astype(np.float64)
     query, train = _pairs_within(predicted, in_front, current.uv, radius)
     return _select_matches(
         query, train, previous.descriptors, current.descriptors, current.uv, max_distance, ratio
@@ -133,13 +142,10 @@ def match_lines(
     """
     if len(previous) == 0 or len(current) == 0:
         return FrameMatches.empty()
-    starts, start_in_front = predict_pixels(camera, T_c_p, previous.endpoints_c[:, 0])
-    ends, end_in_front = predict_pixels(camera, T_c_p, previous.endpoints_c[:, 1])
-    predicted = np.column_stack([starts, ends])
-    usable = start_in_front & end_in_front
+    predicted, usable = predict_segments(camera, T_c_p, previous.endpoints_c)
     midpoints = segment_midpoints(current.endpoints)
     radius = np.full(len(previous), radius_px)
-    query, train = _pairs_within(0.5 * (starts + ends), usable, midpoints, radius)
+    query, train = _pairs_within(segment_midpoints(predicted), usable, midpoints, radius)
     turn = oriented_angle_differences(
         segment_directions(predicted)[query], segment_directions(current.endpoints)[train]
     )

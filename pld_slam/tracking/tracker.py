@@ -51,9 +51,6 @@ from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg
 from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_pixels
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 
-_OCTAVE_SCALE = 1.2
-"""ORB pyramid scale: a point seen at octave ``o`` has a pixel sigma of ``1.2**o`` (as ORB-SLAM2)."""
-
 
 class TrackingStatus(enum.Enum):
     """How a frame's pose was obtained."""
@@ -147,7 +144,7 @@ class Tracker:
         clock.lap("matching")
         kept = self._filter(self._reference, features, matched)
         clock.lap("filters")
-        points = _point_observations(self._reference, features, kept.points)
+        points = _point_observations(self._reference, features, kept.points, self._config.points.scale_factor)
         lines = _line_observations(self._camera, self._reference, features, kept.lines, self._config)
         solution = optimize_pose_rejecting_outliers(
             self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
@@ -245,7 +242,7 @@ class Tracker:
             matches = _FrameMatches(
                 match_points(
                     self._camera, T_c_r, reference.points, current.points,
-                    point_radius, cfg.max_point_distance, cfg.ratio,
+                    point_radius, self._config.points.scale_factor, cfg.max_point_distance, cfg.ratio,
                 ),
                 match_lines(
                     self._camera, T_c_r, reference.lines, current.lines,
@@ -294,7 +291,7 @@ class Tracker:
             octaves = np.column_stack(
                 [reference.points.octave[matches.points.previous], current.points.octave[matches.points.current]]
             )
-            sigma = np.linalg.norm(_OCTAVE_SCALE ** octaves.astype(np.float64), axis=1)
+            sigma = np.linalg.norm(config.points.scale_factor ** octaves.astype(np.float64), axis=1)
             seen = self._seen_dynamic_points[matches.points.previous]
             dynamic_points = dynamic_grid(predicted, point_uv, sigma, cell_size, config.dynamic, seen)
             labels = dataclasses.replace(labels, point_dynamic=dynamic_points)
@@ -334,11 +331,16 @@ class Tracker:
         return dataclasses.replace(refined, inliers=inliers)
 
 
-def _point_observations(reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches) -> PointObservations:
-    """Reference 3D points (reference camera frame) observed as current stereo pixels ``(u_l, v, u_r)``."""
+def _point_observations(
+    reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, scale_factor: float
+) -> PointObservations:
+    """Reference 3D points (reference camera frame) observed as current stereo pixels ``(u_l, v, u_r)``.
+
+    A point found at ORB octave ``o`` has a pixel sigma of ``scale_factor**o`` (as ORB-SLAM2).
+    """
     now = current.points
     stereo_px = np.column_stack([now.uv, now.u_right])[matches.current]
-    sigma = _OCTAVE_SCALE ** now.octave[matches.current].astype(np.float64)
+    sigma = scale_factor ** now.octave[matches.current].astype(np.float64)
     return PointObservations(reference.points.points_c[matches.previous], stereo_px, sigma)
 
 
