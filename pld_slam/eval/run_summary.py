@@ -92,10 +92,14 @@ def _label_quality(per_frame: list[LabelCounts | None]) -> dict[str, float | int
     }
 
 
+def _median_or_none(values: list[int]) -> float | None:
+    """Median of ``values``, None for none (a run stopped at its first frame)."""
+    return float(np.median(values)) if values else None
+
+
 def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -> dict:
     """JSON-ready summary of a run on ``sequence`` (see the module docstring)."""
     records = result.records
-    median = lambda values: float(np.median(values)) if len(values) else None  # noqa: E731
     return {
         "sequence": sequence.name,
         "layout": sequence.layout,
@@ -111,10 +115,10 @@ def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -
         "real_time_factor": real_time_factor(sequence, result),
         **accuracy(sequence.groundtruth, result.trajectory()),
         "features_median": {
-            "stereo_points": median([r.n_points for r in records]),
-            "stereo_lines": median([r.n_lines for r in records]),
-            "point_inliers": median([r.counts.point_inliers for r in records[1:]]),
-            "line_inliers": median([r.counts.line_inliers for r in records[1:]]),
+            "stereo_points": _median_or_none([r.n_points for r in records]),
+            "stereo_lines": _median_or_none([r.n_lines for r in records]),
+            "point_inliers": _median_or_none([r.counts.point_inliers for r in records[1:]]),
+            "line_inliers": _median_or_none([r.counts.line_inliers for r in records[1:]]),
         },
         "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
