@@ -103,11 +103,6 @@ def error_threshold(errors: np.ndarray, config: DynamicConfig) -> float:
     return max(config.error_ratio * float(np.median(errors)), config.min_error_px)
 
 
-def point_prediction_errors(predicted_uv: np.ndarray, detected_uv: np.ndarray) -> np.ndarray:
-    """Distance (K,) [px] between the prediction and the detection of each matched point."""
-    return np.linalg.norm(detected_uv - predicted_uv, axis=1)
-
-
 def cell_mean_offsets(cells: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Occupied cells (C, 2), their mean offset length (C,) and match count (C,).
 
