@@ -153,12 +153,23 @@ class DynamicConfig:
     grid: bool = _param(True, "dynamic grid: drop points in cells that disagree with the motion model")
     llg: bool = _param(True, "dynamic LLG: drop lines in groups that disagree with the motion model")
     error_ratio: float = _param(
-        4.0, "a cell / LLG is dynamic when its RMS prediction error exceeds this times the frame's median", 1.0
+        4.0, "a cell (mean offset) / LLG (median distance) is dynamic over this times the frame's median error", 1.0
     )
-    min_error_px: float = _param(3.0, "... and exceeds this many pixels (noise never counts as motion)", 0.0)
+    min_point_error: float = _param(
+        2.5, "... and over this many sigmas for points (noise never counts as motion)", 0.0
+    )
+    min_line_error_px: float = _param(3.0, "... and over this many pixels for lines", 0.0)
+    disparity_sigma_px: float = _param(
+        0.5, "standard deviation of a stereo disparity at ORB octave 0 [px]: the depth uncertainty of a point", 0.0
+    )
     min_cell_matches: int = _param(2, "matches a grid cell needs to be judged", 1)
     member_ratio: float = _param(
-        0.7, "a feature of a dynamic cell / LLG is dynamic when its own error exceeds this times the threshold", 0.0
+        0.7, "a line of a dynamic LLG, or a feature dynamic before, is dynamic when its error exceeds this times the "
+        "threshold", 0.0
+    )
+    from_masks: bool = _param(
+        False, "take the labels from the sequence's dynamic_masks/ instead of the two detectors (ground truth or a "
+        "segmentation: the best any detector could do)"
     )
 
 

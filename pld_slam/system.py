@@ -14,10 +14,11 @@ import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
-from pld_slam.errors import DatasetError
-from pld_slam.eval.dynamic_labels import LabelCounts, label_counts, lines_on_mask, points_on_mask
+from pld_slam.errors import ConfigError, DatasetError
+from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
@@ -81,6 +82,10 @@ class System:
     def __init__(self, sequence: StereoSequence, config: Config, observer: FrameObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
+        if config.dynamic.from_masks and sequence.dynamic_mask_paths is None:
+            raise ConfigError(
+                f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
+            )
         self.tracker = Tracker(sequence.camera, config)
         self.result = RunResult()
         self._observer = observer
@@ -107,7 +112,8 @@ class System:
             frame.left, frame.right, self.sequence.camera, self.config.points, self.config.lines
         )
         extracted = time.perf_counter()
-        tracked = self.tracker.track(features)
+        moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
+        tracked = self.tracker.track(features, moving_mask)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
         stage_ms["total"] = _ms_since(start)
         point_counts, line_counts = self._dynamic_label_counts(index, tracked.dynamic)

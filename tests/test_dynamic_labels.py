@@ -2,9 +2,10 @@
 
 import numpy as np
 
-from pld_slam.eval.dynamic_labels import LabelCounts, label_counts, lines_on_mask, points_on_mask
+from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.io.dynamic_overlays import DYNAMIC_BGR, STATIC_BGR, draw_dynamic_overlay
 from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
 
 
 def car_mask() -> np.ndarray:

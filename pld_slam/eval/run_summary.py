@@ -56,7 +56,8 @@ def dynamic_summary(result: RunResult) -> dict:
 
     ``per_frame`` lists, for every frame, how many matched points and lines were marked
     dynamic and how many were matched; ``points`` / ``lines`` hold precision and recall
-    over the whole run against the moving-object masks, null without masks.
+    over the whole run against the moving-object masks, and the counts behind them
+    (``flagged``, ``on_moving_objects``, ``flagged_on_them``), null without masks.
     """
     records = result.records
     per_frame = [
@@ -82,13 +83,14 @@ def dynamic_summary(result: RunResult) -> dict:
 def _label_quality(per_frame: list[LabelCounts | None]) -> dict[str, float | int | None]:
     """Precision, recall and counts of dynamic labels summed over frames; nulls without masks."""
     if not per_frame or any(counts is None for counts in per_frame):
-        return {"precision": None, "recall": None, "flagged": None, "on_moving_objects": None}
+        return dict.fromkeys(("precision", "recall", "flagged", "on_moving_objects", "flagged_on_them"))
     total = sum(per_frame, LabelCounts())
     return {
         "precision": total.precision,
         "recall": total.recall,
         "flagged": total.true_positive + total.false_positive,
         "on_moving_objects": total.true_positive + total.false_negative,
+        "flagged_on_them": total.true_positive,
     }
 
 

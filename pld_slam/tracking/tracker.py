@@ -36,7 +36,7 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, nearest_pose
+from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
 from pld_slam.optim.line_reprojection import endpoints_away_from_border
 from pld_slam.optim.pose_only import (
     LineObservations,
@@ -47,8 +47,9 @@ from pld_slam.optim.pose_only import (
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
-from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg
-from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_pixels
+from pld_slam.tracking.dynamic import DynamicLabels, depth_sigma_shift, dynamic_grid, dynamic_llg
+from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_segments
+from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 
 
@@ -133,8 +134,12 @@ class Tracker:
         self._T_w_p = np.eye(4)
         self._velocity = np.eye(4)
 
-    def track(self, features: StereoFeatures) -> TrackedFrame:
-        """Estimate the pose of the frame whose stereo features are ``features``."""
+    def track(self, features: StereoFeatures, moving_mask: np.ndarray | None = None) -> TrackedFrame:
+        """Estimate the pose of the frame whose stereo features are ``features``.
+
+        ``moving_mask`` (H, W) bool, the frame's moving-object pixels, replaces the two
+        detectors when given: the features on it are the dynamic ones (`moving_masks`).
+        """
         if self._reference is None:
             self._set_reference(features, np.eye(4))
             return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST)
@@ -150,7 +155,10 @@ class Tracker:
             self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
         )
         clock.lap("pose")
-        labels = self._label_dynamic(self._reference, features, kept, solution)
+        if moving_mask is None:
+            labels = self._label_dynamic(self._reference, features, kept, solution)
+        else:
+            labels = _labels_from_mask(features, kept, moving_mask)
         solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
         counts = _counts(matched, kept, labels, solution)
@@ -278,31 +286,44 @@ class Tracker:
 
         Nothing is dynamic when both detectors are off or the fit failed.
         """
-        config = self._config
-        point_uv = current.points.uv[matches.points.current]
-        segments = current.lines.endpoints[matches.lines.current]
-        labels = DynamicLabels.none(point_uv, segments)
+        labels = DynamicLabels.none(
+            current.points.uv[matches.points.current], current.lines.endpoints[matches.lines.current]
+        )
         if not solution.success:
             return labels
-        if config.dynamic.grid:
-            points_r = reference.points.points_c[matches.points.previous]
-            predicted, _ = predict_pixels(self._camera, solution.T_c_w, points_r)
-            cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
-            octaves = np.column_stack(
-                [reference.points.octave[matches.points.previous], current.points.octave[matches.points.current]]
-            )
-            sigma = np.linalg.norm(config.points.scale_factor ** octaves.astype(np.float64), axis=1)
-            seen = self._seen_dynamic_points[matches.points.previous]
-            dynamic_points = dynamic_grid(predicted, point_uv, sigma, cell_size, config.dynamic, seen)
+        if self._config.dynamic.grid:
+            dynamic_points = self._dynamic_points(reference, current, matches.points, solution.T_c_w)
             labels = dataclasses.replace(labels, point_dynamic=dynamic_points)
-        if config.dynamic.llg:
-            endpoints_r = reference.lines.endpoints_c[matches.lines.previous]
-            starts, _ = predict_pixels(self._camera, solution.T_c_w, endpoints_r[:, 0])
-            ends, _ = predict_pixels(self._camera, solution.T_c_w, endpoints_r[:, 1])
-            seen = self._seen_dynamic_lines[matches.lines.previous]
-            dynamic_lines = dynamic_llg(np.column_stack([starts, ends]), segments, config.dynamic, seen)
+        if self._config.dynamic.llg:
+            dynamic_lines = self._dynamic_lines(reference, current, matches.lines, solution.T_c_w)
             labels = dataclasses.replace(labels, line_dynamic=dynamic_lines)
         return labels
+
+    def _dynamic_points(
+        self, reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, T_c_r: np.ndarray
+    ) -> np.ndarray:
+        """The dynamic grid over matched points (K,) bool, their stereo observations
+        predicted with ``T_c_r`` and judged in sigmas of the detections and the reference depth."""
+        config = self._config
+        points_r = reference.points.points_c[matches.previous]
+        predicted = self._camera.project_stereo(transform_points(T_c_r, points_r))
+        detected = np.column_stack([current.points.uv, current.points.u_right])[matches.current]
+        octaves = np.column_stack([reference.points.octave[matches.previous], current.points.octave[matches.current]])
+        octave_sigma = config.points.scale_factor ** octaves.astype(np.float64)
+        disparity_sigma = config.dynamic.disparity_sigma_px * octave_sigma[:, 0]
+        depth_shift = depth_sigma_shift(self._camera, T_c_r, points_r, disparity_sigma)
+        sigma = np.sqrt(np.sum(octave_sigma**2, axis=1) + depth_shift**2)
+        cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
+        seen = self._seen_dynamic_points[matches.previous]
+        return dynamic_grid(predicted, detected, sigma, cell_size, config.dynamic, seen)
+
+    def _dynamic_lines(
+        self, reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, T_c_r: np.ndarray
+    ) -> np.ndarray:
+        """The dynamic LLG over matched lines (L,) bool, their segments predicted with ``T_c_r``."""
+        predicted, _ = predict_segments(self._camera, T_c_r, reference.lines.endpoints_c[matches.previous])
+        seen = self._seen_dynamic_lines[matches.previous]
+        return dynamic_llg(predicted, current.lines.endpoints[matches.current], self._config.dynamic, seen)
 
     def _without_dynamic(
         self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
@@ -329,6 +350,14 @@ class Tracker:
             refined.inliers.line_horizontal & include.line_horizontal,
         )
         return dataclasses.replace(refined, inliers=inliers)
+
+
+def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_mask: np.ndarray) -> DynamicLabels:
+    """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
+    point_uv = current.points.uv[matches.points.current]
+    segments = current.lines.endpoints[matches.lines.current]
+    point_dynamic = points_on_mask(point_uv, moving_mask)
+    return DynamicLabels(point_uv, point_dynamic, segments, lines_on_mask(segments, moving_mask))
 
 
 def _point_observations(

@@ -1,0 +1,49 @@
+"""Features on moving-object masks: which points and lines lie on a moving object.
+
+A mask (H, W) bool marks the pixels of moving objects in a left image: the synthetic
+sequences' ground truth (``dynamic_masks/``), or a segmentation a user supplies in the
+same layout. The tracker takes its dynamic labels from it when ``dynamic.from_masks`` is
+set, and the run summary scores the detectors against it.
+
+A point belongs to a moving object when the mask, dilated by `OUTLINE_MARGIN_PX`, is set
+at its (rounded) pixel: a corner on an object's outline (the object against the
+background behind it) moves with the object, yet its rounded pixel falls on either side
+of the mask's edge by chance. A line belongs to one when most of it does: at least 3 of
+5 samples evenly spaced from start to end (the endpoints included) fall on the dilated
+mask, so a static edge that merely touches an object is not counted as moving.
+"""
+
+import cv2
+import numpy as np
+
+_LINE_SAMPLES = np.linspace(0.0, 1.0, 5)
+
+OUTLINE_MARGIN_PX = 2
+"""Dilation of the moving-object masks [px] before features are labelled."""
+
+
+def dilated(mask: np.ndarray) -> np.ndarray:
+    """The mask (H, W) bool grown by `OUTLINE_MARGIN_PX` in every direction."""
+    size = 2 * OUTLINE_MARGIN_PX + 1
+    return cv2.dilate(mask.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+
+
+def mask_at(mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Mask value (N,) bool at pixels (N, 2), rounded and clipped into the image."""
+    height, width = mask.shape
+    u = np.clip(np.rint(uv[:, 0]).astype(np.int64), 0, width - 1)
+    v = np.clip(np.rint(uv[:, 1]).astype(np.int64), 0, height - 1)
+    return mask[v, u]
+
+
+def points_on_mask(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Whether each point (N, 2) lies on the moving-object mask (H, W), outline included."""
+    return mask_at(dilated(mask), uv)
+
+
+def lines_on_mask(segments: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Whether most of each segment (M, 4) lies on the moving-object mask (H, W), outline included."""
+    mask = dilated(mask)
+    samples = segments[:, None, :2] + _LINE_SAMPLES[None, :, None] * (segments[:, None, 2:] - segments[:, None, :2])
+    on = mask_at(mask, samples.reshape(-1, 2)).reshape(len(segments), len(_LINE_SAMPLES))
+    return on.sum(axis=1) >= 3
