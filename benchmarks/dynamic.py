@@ -62,12 +62,17 @@ def label_counts(dynamic: dict) -> dict:
     }
 
 
+def count_columns(table: pd.DataFrame) -> list[str]:
+    """The label-count columns of ``table`` (`label_counts`)."""
+    return [column for column in table.columns if column.startswith(("points ", "lines "))]
+
+
 def pooled(rows: pd.DataFrame) -> pd.DataFrame:
     """Per variant over the synthetic dynamic sequences: ATE / neither (mean, min, max) and
     precision / recall of the labels pooled over all their frames."""
     table = {}
     for variant, group in rows.groupby("variant", sort=False):
-        counts = group.filter(like=" ").sum(numeric_only=True)
+        counts = group[count_columns(group)].sum()
         table[variant] = {
             "ATE / neither mean": group["ATE / neither"].mean(),
             "min": group["ATE / neither"].min(),
@@ -132,8 +137,7 @@ def main() -> None:
         else:
             print(f"skipped {data_dir / relative}: not found (set PLD_SLAM_DATA)")
     table = pd.DataFrame(rows)
-    shown = [column for column in table.columns if not column.startswith(("points ", "lines "))]
-    print(table[shown].to_string(index=False, float_format=lambda x: f"{x:.3f}"))
+    print(table.drop(columns=count_columns(table)).to_string(index=False, float_format=lambda x: f"{x:.3f}"))
     dynamic = table[table["sequence"].str.startswith("synth_dynamic")]
     print(f"\nsynthetic dynamic, seeds {' '.join(map(str, args.seeds))} pooled:")
     print(pooled(dynamic).to_string(float_format=lambda x: f"{x:.3f}"))
