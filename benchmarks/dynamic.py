@@ -52,7 +52,7 @@ def run_variant(sequence: StereoSequence, family: str, overrides: tuple[str, ...
     return summarise_run(sequence, system.result, config)
 
 
-def label_counts(dynamic: dict) -> dict:
+def label_count_columns(dynamic: dict) -> dict:
     """The run's label counts (summed over frames) for pooling over sequences: flagged,
     on moving objects, and both, for points and lines; None without masks."""
     return {
@@ -63,7 +63,7 @@ def label_counts(dynamic: dict) -> dict:
 
 
 def count_columns(table: pd.DataFrame) -> list[str]:
-    """The label-count columns of ``table`` (`label_counts`)."""
+    """The label-count columns of ``table`` (`label_count_columns`)."""
     return [column for column in table.columns if column.startswith(("points ", "lines "))]
 
 
@@ -107,7 +107,7 @@ def rows_for(folder: Path, family: str, extra: tuple[str, ...]) -> list[dict]:
             "line R": dynamic["lines"]["recall"],
             "dyn ms": summary["timing_ms"]["dynamic"]["median"],
             "total ms": summary["timing_ms"]["total"]["median"],
-            **label_counts(dynamic),
+            **label_count_columns(dynamic),
         })
     neither = rows[0]["ATE [m]"]
     for row in rows:

@@ -18,7 +18,7 @@ from pld_slam.errors import ConfigError, DatasetError
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
+from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
@@ -116,7 +116,8 @@ class System:
         tracked = self.tracker.track(features, moving_mask)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
         stage_ms["total"] = _ms_since(start)
-        point_counts, line_counts = self._dynamic_label_counts(index, tracked.dynamic)
+        truth = moving_mask if moving_mask is not None else self.sequence.dynamic_mask(index)
+        point_counts, line_counts = _label_counts_against(truth, tracked.dynamic)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
                              n_points=len(features.points), n_lines=len(features.lines),
                              dynamic_points=point_counts, dynamic_lines=line_counts)
@@ -145,23 +146,21 @@ class System:
             raise
         return self.result
 
-    def _dynamic_label_counts(
-        self, index: int, labels: DynamicLabels | None
-    ) -> tuple[LabelCounts | None, LabelCounts | None]:
-        """Dynamic labels of frame ``index`` against its moving-object mask, when the sequence has masks."""
-        mask = self.sequence.dynamic_mask(index)
-        if mask is None:
-            return None, None
-        if labels is None:
-            return LabelCounts(), LabelCounts()
-        return (
-            label_counts(labels.point_dynamic, points_on_mask(labels.point_uv, mask)),
-            label_counts(labels.line_dynamic, lines_on_mask(labels.line_segments, mask)),
-        )
-
     def _add(self, record: FrameRecord, start: float) -> None:
         self.result.records.append(record)
         self.result.wall_seconds += time.perf_counter() - start
+
+
+def _label_counts_against(
+    mask: np.ndarray | None, labels: DynamicLabels | None
+) -> tuple[LabelCounts | None, LabelCounts | None]:
+    """A frame's dynamic labels against its moving-object mask (H, W); None, None without a mask."""
+    if mask is None:
+        return None, None
+    if labels is None:
+        return LabelCounts(), LabelCounts()
+    on_points, on_lines = features_on_mask(labels.point_uv, labels.line_segments, mask)
+    return label_counts(labels.point_dynamic, on_points), label_counts(labels.line_dynamic, on_lines)
 
 
 def _ms_since(start: float) -> float:

@@ -15,12 +15,12 @@ from pld_slam.geometry.se3 import se3_exp, transform_points
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 from pld_slam.tracking.dynamic import (
-    depth_sigma_shift,
     dynamic_grid,
     dynamic_llg,
     error_threshold,
     line_prediction_distances,
     moves_with_a_hot_cell,
+    predict_stereo_with_depth_sigma,
 )
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -135,7 +135,7 @@ def test_a_depth_sigma_seen_from_the_same_pose_is_a_disparity_sigma():
     depth = np.array([5.0, 20.0, 60.0])
     points_r = CAMERA.backproject(np.array([[100.0, 50.0], [320.0, 240.0], [600.0, 400.0]]), depth)
     sigma_d = np.array([0.5, 0.5, 1.2])
-    shift = depth_sigma_shift(CAMERA, np.eye(4), points_r, sigma_d)
+    _, shift = predict_stereo_with_depth_sigma(CAMERA, np.eye(4), points_r, sigma_d)
     sigma_z = depth**2 * sigma_d / CAMERA.bf
     np.testing.assert_allclose(shift, sigma_d * depth / (depth + sigma_z), rtol=1e-9)
 
@@ -146,8 +146,8 @@ def test_driving_towards_a_point_magnifies_its_depth_sigma_in_the_prediction():
     forward = se3_exp(np.array([0.0, 0.0, -4.0, 0.0, 0.0, 0.0]))
     points_r = CAMERA.backproject(np.array([[500.0, 300.0], [500.0, 300.0]]), np.array([8.0, 40.0]))
     sigma_d = np.array([0.5, 0.5])
-    moved = depth_sigma_shift(CAMERA, forward, points_r, sigma_d)
-    still = depth_sigma_shift(CAMERA, np.eye(4), points_r, sigma_d)
+    _, moved = predict_stereo_with_depth_sigma(CAMERA, forward, points_r, sigma_d)
+    _, still = predict_stereo_with_depth_sigma(CAMERA, np.eye(4), points_r, sigma_d)
     assert np.all(moved > still)
     assert moved[0] > 10 * sigma_d[0] and moved[0] > moved[1]
 

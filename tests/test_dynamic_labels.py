@@ -5,7 +5,7 @@ import numpy as np
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.io.dynamic_overlays import DYNAMIC_BGR, STATIC_BGR, draw_dynamic_overlay
 from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
+from pld_slam.tracking.moving_masks import features_on_mask
 
 
 def car_mask() -> np.ndarray:
@@ -16,7 +16,8 @@ def car_mask() -> np.ndarray:
 
 def test_points_on_the_mask_or_its_outline_count_as_moving():
     uv = np.array([[90.0, 60.0], [61.0, 41.0], [58.4, 60.0], [50.0, 60.0], [10.0, 10.0]])
-    assert points_on_mask(uv, car_mask()).tolist() == [True, True, True, False, False]
+    on_points, _ = features_on_mask(uv, np.zeros((0, 4)), car_mask())
+    assert on_points.tolist() == [True, True, True, False, False]
 
 
 def test_a_line_counts_as_moving_when_most_of_it_is_on_the_mask():
@@ -25,7 +26,8 @@ def test_a_line_counts_as_moving_when_most_of_it_is_on_the_mask():
         [30.0, 60.0, 100.0, 60.0],  # 3 of 5 samples inside (65, 82.5, 100)
         [10.0, 60.0, 70.0, 60.0],  # only the end touches
     ])
-    assert lines_on_mask(segments, car_mask()).tolist() == [True, True, False]
+    _, on_lines = features_on_mask(np.zeros((0, 2)), segments, car_mask())
+    assert on_lines.tolist() == [True, True, False]
 
 
 def test_precision_and_recall_from_counts():

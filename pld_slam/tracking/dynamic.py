@@ -30,7 +30,7 @@ grows. On the synthetic dynamic street (seeds 0-2, pooled) this took point recal
 Errors in sigma units. A point's error is divided by its expected standard deviation,
 as the pose estimation weighs it: ORB corners are located to ``1.2**octave`` px in each
 image, and the prediction inherits the reference point's depth uncertainty
-(`depth_sigma_shift`: a disparity sigma of ``disparity_sigma_px * 1.2**octave``, 0.5 px
+(`predict_stereo_with_depth_sigma`: a disparity sigma of ``disparity_sigma_px * 1.2**octave``, 0.5 px
 at octave 0, is a depth sigma of ``z**2 / (b f)`` times it, magnified as the camera
 drives towards the point). Without the depth term, the near ground and the far facades
 filled the error tail: on the synthetic dynamic street it took point precision from
@@ -94,7 +94,7 @@ from pld_slam.config import DynamicConfig
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.optim.line_reprojection import detected_line_coefficients
-from pld_slam.tracking.outliers import cell_coordinates, overlapping_domains
+from pld_slam.tracking.outliers import cell_coordinates, group_means, overlapping_domains
 
 
 @dataclass(frozen=True)
@@ -128,11 +128,12 @@ def error_threshold(errors: np.ndarray, ratio: float, floor: float) -> float:
     return max(ratio * float(np.median(errors)), floor)
 
 
-def depth_sigma_shift(
+def predict_stereo_with_depth_sigma(
     camera: StereoCamera, T_c_r: np.ndarray, points_r: np.ndarray, disparity_sigma_px: np.ndarray
-) -> np.ndarray:
-    """How far (K,) [px] the predicted stereo observation of each reference point moves
-    when the point moves one depth standard deviation along its viewing ray.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted stereo observations ``(u_left, v, u_right)`` (K, 3) [px] of reference points,
+    and how far (K,) [px] each moves when its point moves one depth standard deviation
+    along its viewing ray.
 
     ``points_r`` (K, 3) are in the reference camera, ``T_c_r`` maps them into the current
     one, ``disparity_sigma_px`` (K,) is the standard deviation of each point's reference
@@ -142,7 +143,8 @@ def depth_sigma_shift(
     depth_sigma = depth**2 / camera.bf * disparity_sigma_px
     pushed = points_r * (1.0 + depth_sigma / depth)[:, None]
     predicted = camera.project_stereo(transform_points(T_c_r, points_r))
-    return np.linalg.norm(camera.project_stereo(transform_points(T_c_r, pushed)) - predicted, axis=1)
+    shift = np.linalg.norm(camera.project_stereo(transform_points(T_c_r, pushed)) - predicted, axis=1)
+    return predicted, shift
 
 
 def cell_mean_offsets(cells: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -152,9 +154,7 @@ def cell_mean_offsets(cells: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarra
     detection minus prediction (whitened).
     """
     unique, label, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    label = label.reshape(-1)
-    sums = np.column_stack([np.bincount(label, weights=column) for column in offsets.T])
-    return unique, sums / counts[:, None], counts
+    return unique, group_means(offsets, label.reshape(-1)), counts
 
 
 def moves_with_a_hot_cell(

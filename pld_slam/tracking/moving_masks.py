@@ -36,14 +36,12 @@ def mask_at(mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return mask[v, u]
 
 
-def points_on_mask(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Whether each point (N, 2) lies on the moving-object mask (H, W), outline included."""
-    return mask_at(dilated(mask), uv)
-
-
-def lines_on_mask(segments: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Whether most of each segment (M, 4) lies on the moving-object mask (H, W), outline included."""
-    mask = dilated(mask)
+def features_on_mask(
+    point_uv: np.ndarray, segments: np.ndarray, mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each point (N, 2) lies, and most of each segment (M, 4) lies, on the
+    moving-object mask (H, W), outline included: (N,) and (M,) bool."""
+    grown = dilated(mask)
     samples = segments[:, None, :2] + _LINE_SAMPLES[None, :, None] * (segments[:, None, 2:] - segments[:, None, :2])
-    on = mask_at(mask, samples.reshape(-1, 2)).reshape(len(segments), len(_LINE_SAMPLES))
-    return on.sum(axis=1) >= 3
+    on = mask_at(grown, samples.reshape(-1, 2)).reshape(len(segments), len(_LINE_SAMPLES))
+    return mask_at(grown, point_uv), on.sum(axis=1) >= 3

@@ -36,7 +36,7 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
+from pld_slam.geometry.se3 import inverse, nearest_pose
 from pld_slam.optim.line_reprojection import endpoints_away_from_border
 from pld_slam.optim.pose_only import (
     LineObservations,
@@ -47,9 +47,9 @@ from pld_slam.optim.pose_only import (
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
-from pld_slam.tracking.dynamic import DynamicLabels, depth_sigma_shift, dynamic_grid, dynamic_llg
+from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg, predict_stereo_with_depth_sigma
 from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_segments
-from pld_slam.tracking.moving_masks import lines_on_mask, points_on_mask
+from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 
 
@@ -306,12 +306,11 @@ class Tracker:
         predicted with ``T_c_r`` and judged in sigmas of the detections and the reference depth."""
         config = self._config
         points_r = reference.points.points_c[matches.previous]
-        predicted = self._camera.project_stereo(transform_points(T_c_r, points_r))
         detected = np.column_stack([current.points.uv, current.points.u_right])[matches.current]
         octaves = np.column_stack([reference.points.octave[matches.previous], current.points.octave[matches.current]])
         octave_sigma = config.points.scale_factor ** octaves.astype(np.float64)
         disparity_sigma = config.dynamic.disparity_sigma_px * octave_sigma[:, 0]
-        depth_shift = depth_sigma_shift(self._camera, T_c_r, points_r, disparity_sigma)
+        predicted, depth_shift = predict_stereo_with_depth_sigma(self._camera, T_c_r, points_r, disparity_sigma)
         sigma = np.sqrt(np.sum(octave_sigma**2, axis=1) + depth_shift**2)
         cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
         seen = self._seen_dynamic_points[matches.previous]
@@ -356,8 +355,8 @@ def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_ma
     """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
     point_uv = current.points.uv[matches.points.current]
     segments = current.lines.endpoints[matches.lines.current]
-    point_dynamic = points_on_mask(point_uv, moving_mask)
-    return DynamicLabels(point_uv, point_dynamic, segments, lines_on_mask(segments, moving_mask))
+    point_dynamic, line_dynamic = features_on_mask(point_uv, segments, moving_mask)
+    return DynamicLabels(point_uv, point_dynamic, segments, line_dynamic)
 
 
 def _point_observations(
