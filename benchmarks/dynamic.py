@@ -23,14 +23,13 @@ from pathlib import Path
 
 import pandas as pd
 
-from pld_slam.config import load_config
 from pld_slam.datasets import StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
+from pld_slam.run_config import load_run_config
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIGS = REPO / "configs"
 VARIANTS = {
     "neither": ("dynamic.grid=false", "dynamic.llg=false"),
     "grid": ("dynamic.grid=true", "dynamic.llg=false"),
@@ -38,18 +37,18 @@ VARIANTS = {
     "both": ("dynamic.grid=true", "dynamic.llg=true"),
     "masks": ("dynamic.from_masks=true",),
 }
-REAL = {
-    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync": "kitti.yaml",
-    "kitti_odometry/sequences/06": "kitti.yaml",
-}
+REAL = (
+    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync",
+    "kitti_odometry/sequences/06",
+)
 
 
-def run_variant(sequence: StereoSequence, family: str, overrides: tuple[str, ...]) -> dict:
-    """Summary of one run with the detectors switched by ``overrides``."""
-    config = load_config([CONFIGS / "default.yaml", CONFIGS / family], overrides)
-    system = System(sequence, config)
+def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
+    """Summary of one run (the sequence's family config) with the detectors switched by ``overrides``."""
+    run_config = load_run_config(sequence, overrides=overrides)
+    system = System(sequence, run_config.config)
     system.run()
-    return summarise_run(sequence, system.result, config)
+    return summarise_run(sequence, system.result, run_config.config, run_config.sources)
 
 
 def label_count_columns(dynamic: dict) -> dict:
@@ -87,14 +86,14 @@ def pooled(rows: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(table).T
 
 
-def rows_for(folder: Path, family: str, extra: tuple[str, ...]) -> list[dict]:
+def rows_for(folder: Path, extra: tuple[str, ...]) -> list[dict]:
     """One row per variant on the sequence in ``folder`` ("masks" only where it has masks)."""
     sequence = open_sequence(folder)
     rows = []
     for variant, overrides in VARIANTS.items():
         if variant == "masks" and sequence.dynamic_mask_paths is None:
             continue
-        summary = run_variant(sequence, family, extra + overrides)
+        summary = run_variant(sequence, extra + overrides)
         dynamic = summary["dynamic"]
         rows.append({
             "sequence": summary["sequence"],
@@ -128,12 +127,12 @@ def main() -> None:
         for seed in seeds:
             folder = args.out / f"{scenario}_{seed}"
             write_sequence(folder, scenario, n_frames=args.frames, seed=seed)
-            synthetic_rows = rows_for(folder, "synthetic.yaml", extra)
+            synthetic_rows = rows_for(folder, extra)
             rows += [dict(row, sequence=f"synth_{scenario}_{seed}") for row in synthetic_rows]
     data_dir = Path(os.environ.get("PLD_SLAM_DATA", REPO.parent / "shared" / "data"))
-    for relative, family in REAL.items():
+    for relative in REAL:
         if (data_dir / relative).is_dir():
-            rows += rows_for(data_dir / relative, family, extra)
+            rows += rows_for(data_dir / relative, extra)
         else:
             print(f"skipped {data_dir / relative}: not found (set PLD_SLAM_DATA)")
     table = pd.DataFrame(rows)

@@ -23,12 +23,8 @@ import numpy as np
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, rotation_angle, se3_exp, transform_points
 from pld_slam.optim.line_reprojection import detected_line_directions, endpoints_away_from_border
-from pld_slam.optim.pose_only import (
-    LineObservations,
-    PointObservations,
-    PoseOnlyResult,
-    optimize_pose_rejecting_outliers,
-)
+from pld_slam.optim.observations import LineObservations, PointObservations
+from pld_slam.optim.pose_only import PoseOnlyResult, optimize_pose_rejecting_outliers
 
 CAMERA = StereoCamera(
     fx=707.0912, fy=707.0912, cx=601.8873, cy=183.1104, baseline=0.537, width=1226, height=370

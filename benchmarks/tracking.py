@@ -15,30 +15,29 @@ from pathlib import Path
 
 import pandas as pd
 
-from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.eval.run_summary import summarise_run
+from pld_slam.run_config import load_run_config
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIGS = REPO / "configs"
-REAL_EXTRACTS = {
-    "kitti_odometry/sequences/06": "kitti.yaml",
-    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync": "kitti.yaml",
-    "euroc/V1_01_easy_static": "euroc.yaml",
-    "euroc/V1_01_easy_flight": "euroc.yaml",
-}
+REAL_EXTRACTS = (
+    "kitti_odometry/sequences/06",
+    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync",
+    "euroc/V1_01_easy_static",
+    "euroc/V1_01_easy_flight",
+)
 STAGE_COLUMNS = ("frontend", "matching", "filters", "pose", "dynamic", "total")
 
 
-def run_row(folder: Path, config_name: str, variant: str, overrides: tuple[str, ...] = ()) -> dict:
-    """One table row: run the pipeline on ``folder`` and summarise it."""
+def run_row(folder: Path, variant: str, overrides: tuple[str, ...] = ()) -> dict:
+    """One table row: run the pipeline on ``folder`` (its family's config, then ``overrides``) and summarise it."""
     sequence = open_sequence(folder)
-    config = load_config([CONFIGS / "default.yaml", CONFIGS / config_name], overrides)
-    system = System(sequence, config)
+    run_config = load_run_config(sequence, overrides=overrides)
+    system = System(sequence, run_config.config)
     system.run()
-    summary = summarise_run(sequence, system.result, config)
+    summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
     row = {
         "sequence": sequence.name,
         "variant": variant,
@@ -57,12 +56,12 @@ def run_row(folder: Path, config_name: str, variant: str, overrides: tuple[str, 
 def real_rows(data_dir: Path) -> list[dict]:
     """Rows for the real extracts present in ``data_dir`` (missing ones are reported and skipped)."""
     rows = []
-    for relative, config_name in REAL_EXTRACTS.items():
+    for relative in REAL_EXTRACTS:
         folder = data_dir / relative
         if not folder.is_dir():
             print(f"skipped {folder}: not found (set PLD_SLAM_DATA)")
             continue
-        rows.append(run_row(folder, config_name, "default"))
+        rows.append(run_row(folder, "default"))
     return rows
 
 
@@ -73,7 +72,7 @@ def synthetic_rows(out: Path, n_frames: int) -> list[dict]:
         folder = out / scenario
         write_sequence(folder, scenario, n_frames=n_frames, seed=0)
         for lines in ("true", "false"):
-            rows.append(run_row(folder, "synthetic.yaml", f"lines={lines}", (f"lines.enabled={lines}",)))
+            rows.append(run_row(folder, f"lines={lines}", (f"lines.enabled={lines}",)))
     return rows
 
 

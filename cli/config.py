@@ -5,6 +5,8 @@ from pathlib import Path
 import click
 
 from pld_slam.config import dump_config, load_config
+from pld_slam.datasets import open_sequence
+from pld_slam.run_config import load_run_config
 
 config_files_option = click.option(
     "--config",
@@ -25,6 +27,16 @@ set_option = click.option(
 @click.command("config")
 @config_files_option
 @set_option
-def config_command(config_paths: tuple[Path, ...], overrides: tuple[str, ...]) -> None:
-    """Print the effective configuration as YAML (defaults, then files, then --set)."""
-    click.echo(dump_config(load_config(config_paths, overrides)), nl=False)
+@click.option("--sequence", "sequence_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              default=None, help="Print the config of a run on this sequence folder (its dataset family included).")
+def config_command(config_paths: tuple[Path, ...], overrides: tuple[str, ...], sequence_dir: Path | None) -> None:
+    """Print the effective configuration as YAML (defaults, then files, then --set).
+
+    With --sequence, the dataset family's file of that folder comes right after the
+    defaults, as in `pld-slam run`, and a first comment line lists the sources.
+    """
+    if sequence_dir is None:
+        click.echo(dump_config(load_config(config_paths, overrides)), nl=False)
+        return
+    run_config = load_run_config(open_sequence(sequence_dir), config_paths, overrides)
+    click.echo(f"# sources: {', '.join(run_config.sources)}\n{dump_config(run_config.config)}", nl=False)

@@ -6,11 +6,11 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from pld_slam.config import load_config
 from pld_slam.datasets import StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.run_output import write_run_outputs
+from pld_slam.run_config import load_run_config
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam_cli.config import config_files_option, set_option
@@ -60,11 +60,15 @@ def overlay_writer(folder: Path, sequence: StereoSequence):
 def run_and_write(
     sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None, save_dynamic: Path | None = None
 ) -> dict:
-    """Run the pipeline and write its files; on Ctrl-C or an error the files still get written."""
-    config = load_config(config_paths, overrides)
+    """Run the pipeline and write its files; on Ctrl-C or an error the files still get written.
+
+    The configuration is `load_run_config`'s: defaults, the dataset family's file, then
+    ``config_paths`` and ``overrides``.
+    """
     sequence = open_sequence(sequence_dir)
+    run_config = load_run_config(sequence, config_paths, overrides)
     observer = None if save_dynamic is None else overlay_writer(save_dynamic, sequence)
-    system = System(sequence, config, observer)
+    system = System(sequence, run_config.config, observer)
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):
@@ -73,7 +77,7 @@ def run_and_write(
     try:
         system.run(max_frames=max_frames, progress=progress)
     finally:
-        summary = summarise_run(sequence, system.result, config)
+        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
         write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth, title=sequence.name)
     return summary
 
@@ -92,10 +96,13 @@ def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, m
                 as_json: bool, save_dynamic: Path | None) -> None:
     """Run PLD-SLAM on the stereo sequence in SEQUENCE_DIR (KITTI, KITTI raw, EuRoC or generic).
 
+    The dataset family's config (kitti.yaml, euroc.yaml or synthetic.yaml, from the
+    detected layout) is applied first, then --config files, then --set.
+
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
-    first camera), summary.json (frames, failures, timing, real-time factor, and ATE/RPE
-    when the sequence has ground truth) and trajectory.png. Ctrl-C or an error mid-run
-    still writes the trajectory so far.
+    first camera), summary.json (frames, failures, timing, real-time factor, ATE/RPE
+    when the sequence has ground truth, the config and its sources) and trajectory.png.
+    Ctrl-C or an error mid-run still writes the trajectory so far.
     """
     out = out if out is not None else Path("runs") / open_sequence(sequence_dir).name
     summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic)

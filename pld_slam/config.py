@@ -65,6 +65,9 @@ class PointsConfig:
     max_depth_baselines: float = _param(
         200.0, "farthest stereo point, in baselines (disparity >= fx / this)", 0.01
     )
+    disparity_sigma_px: float = _param(
+        0.15, "standard deviation of a stereo disparity at ORB octave 0 [px], in pose and BA costs", 0.001
+    )
 
 
 @dataclass(frozen=True)
@@ -185,19 +188,78 @@ class GgsConfig:
 
 @dataclass(frozen=True)
 class KeyframesConfig:
-    """GGS keyframe selection (paper, section LM)."""
+    """Keyframe selection: the paper's GGS rule or ORB-SLAM2's, and safety rules (`pld_slam.keyframes`)."""
 
+    policy: Literal["ggs", "tracked_ratio"] = _param(
+        "ggs", "which rule inserts keyframes: GGS threshold (paper) or tracked-landmark ratio (ORB-SLAM2)"
+    )
     ggs_gain: float = _param(
         0.4, "GGS_th = GGS_pKF + gain * (GGS_pKF+1 - GGS_ppKF+1) (paper: 0.4)", 0.0
+    )
+    tracked_ratio: float = _param(
+        0.9, "tracked_ratio policy: a keyframe when the frame tracks fewer than this share of its reference "
+        "keyframe's landmarks (ORB-SLAM2: 0.9)", 0.0, 1.0
+    )
+    min_tracked_ratio: float = _param(
+        0.25, "safety, both policies: a keyframe when the frame tracks fewer than this share of its reference "
+        "keyframe's landmarks (ORB-SLAM2: 0.25)", 0.0, 1.0
+    )
+    max_frames_between: int = _param(
+        10, "safety, both policies: a keyframe at the latest after this many frames (ORB-SLAM2: one second)", 1
+    )
+    close_depth_baselines: float = _param(
+        40.0, "safety, both policies: stereo points nearer than this many baselines are close (ORB-SLAM2: 35-40)", 0.0
+    )
+    min_tracked_close: int = _param(
+        100, "... a keyframe when the frame tracks fewer close map points than this (ORB-SLAM2: 100)", 0
+    )
+    min_new_close: int = _param(
+        70, "... and more than this many close stereo points have no map point (ORB-SLAM2: 70)", 0
     )
 
 
 @dataclass(frozen=True)
 class MappingConfig:
-    """Local map and covisibility graph (paper, section LM)."""
+    """Local map, covisibility graph and local BA (paper, sections LM and Local BA; `pld_slam.mapping`)."""
 
+    enabled: bool = _param(True, "build a map and track it (off: visual odometry against a reference frame)")
     covisibility_min_shared: int = _param(
         20, "landmarks two keyframes must share for a covisibility edge (paper: 20)", 1
+    )
+    local_ba_window: int = _param(
+        10, "covisible keyframes optimised by local BA with each new keyframe (their landmarks too)", 1
+    )
+    local_ba_max_nfev: int = _param(
+        10, "residual evaluations of each of the two local BA solves (robust, then without outliers)", 1
+    )
+    tracking_keyframes: int = _param(
+        20, "keyframes whose landmarks form the local map tracked by each frame", 1
+    )
+    point_search_radius_px: float = _param(
+        4.0, "window around a map point's projection searched for its match [px at its predicted octave 0]", 0.5
+    )
+    line_search_radius_px: float = _param(
+        15.0, "window around a map line midpoint's projection searched for its match [px]", 0.5
+    )
+    max_viewing_angle: float = _param(
+        1.047, "a landmark seen more than this angle [rad] away from its mean viewing direction is not searched "
+        "(ORB-SLAM2: 60 deg)", 0.0, 3.142
+    )
+    min_observers: int = _param(
+        3, "a landmark is culled when two keyframes after its creation fewer keyframes than this see it", 1
+    )
+    min_found_ratio: float = _param(
+        0.25, "a new landmark is culled when matched in fewer than this share of the frames that should see it",
+        0.0, 1.0
+    )
+    redundant_keyframe_ratio: float = _param(
+        0.9, "a keyframe is culled when this share of its landmarks is seen by redundant_observers other keyframes",
+        0.0, 1.0
+    )
+    redundant_observers: int = _param(3, "other keyframes that make a landmark of a keyframe redundant", 1)
+    dynamic_hits: int = _param(
+        2, "a landmark matched to features labelled dynamic in this many frames, and in at least half of its "
+        "matches, is removed", 1
     )
 
 

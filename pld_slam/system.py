@@ -1,9 +1,21 @@
 """`System`: the stages of PLD-SLAM wired together, run in order for each frame.
 
-For now the stages are the front end (stereo points and lines of each pair) and tracking
-(frame-to-frame pose); mapping, loop closure and the final global BA join here as they
-are built. `System` keeps a `FrameRecord` per frame, so a run stopped early (Ctrl-C, an
-error) still has the trajectory of every frame it processed.
+The stages: the front end (stereo points and lines of each pair, and its GGS), tracking
+(against the reference frame, then the local map), and local mapping (keyframe
+insertion, landmark creation and culling, local BA), which runs inline: a keyframe's
+mapping work happens before the next frame is tracked. ``mapping.enabled: false`` leaves
+tracking alone, a visual odometry against the reference frame. Loop closure and the
+final global BA join here as they are built.
+
+Every frame's pose. With a map, a frame's pose is stored relative to its reference
+keyframe (the last keyframe inserted before it; a keyframe is its own), and
+`RunResult.trajectory` composes it with that keyframe's pose at the time it is asked, so
+the written trajectory carries every correction that BA made to the keyframes after the
+frame was tracked (ORB-SLAM2 does the same). A culled keyframe leaves its pose relative
+to its spanning-tree parent (`pld_slam.mapping.map.Map.keyframe_T_w_c`).
+
+`System` keeps a `FrameRecord` per frame, so a run stopped early (Ctrl-C, an error) still
+has the trajectory of every frame it processed.
 """
 
 import time
@@ -16,14 +28,20 @@ from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import ConfigError, DatasetError
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
-from pld_slam.frontend import extract_stereo_features
+from pld_slam.frontend import StereoFeatures, extract_stereo_features
+from pld_slam.geometry.se3 import inverse
+from pld_slam.keyframes import KeyframeReason
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
+from pld_slam.mapping.map import Map
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
-STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "total")
-"""Timed stages of one frame, in order; ``total`` is the frame's whole wall time."""
+STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "mapping", "total")
+"""Timed stages of one frame, in order; ``mapping`` (keyframes only) is the local mapping of
+a keyframe, local BA included; ``total`` is the frame's whole wall time."""
 
 
 @dataclass(frozen=True)
@@ -33,7 +51,10 @@ class FrameRecord:
     Attributes
     ----------
     index, timestamp : frame number in the sequence and time [s].
-    T_w_c : (4, 4) camera-to-world pose.
+    T_w_c : (4, 4) camera-to-world pose when the frame was tracked.
+    reference_keyframe : id of the keyframe the pose is stored relative to (None without a map).
+    T_c_r : (4, 4) the frame's pose relative to that keyframe's (identity for a keyframe).
+    keyframe : why the frame became a keyframe, None for the others.
     status : how tracking obtained the pose.
     counts : matches, filter survivors and inliers.
     stage_ms : wall time per stage [ms] (keys from `STAGES`).
@@ -54,22 +75,36 @@ class FrameRecord:
     skipped_reason: str | None = None
     dynamic_points: LabelCounts | None = None
     dynamic_lines: LabelCounts | None = None
+    reference_keyframe: int | None = None
+    T_c_r: np.ndarray | None = None
+    keyframe: KeyframeReason | None = None
 
 
 @dataclass
 class RunResult:
-    """The records of a run so far, and whether it went to the end."""
+    """The records of a run so far, and whether it went to the end.
+
+    ``map`` is the run's map (None without mapping); ``insertions`` what local mapping did
+    at each keyframe.
+    """
 
     records: list[FrameRecord] = field(default_factory=list)
     wall_seconds: float = 0.0
     stop_reason: str | None = None
+    map: Map | None = None
+    insertions: list[KeyframeInsertion] = field(default_factory=list)
 
     def trajectory(self) -> Trajectory:
-        """``T_w_c`` of every processed frame."""
+        """``T_w_c`` of every processed frame, through its reference keyframe's current pose where it has one."""
         return Trajectory(
             np.array([r.timestamp for r in self.records]),
-            np.array([r.T_w_c for r in self.records]).reshape(-1, 4, 4),
+            np.array([self._final_pose(r) for r in self.records]).reshape(-1, 4, 4),
         )
+
+    def _final_pose(self, record: FrameRecord) -> np.ndarray:
+        if self.map is None or record.reference_keyframe is None:
+            return record.T_w_c
+        return self.map.keyframe_T_w_c(record.reference_keyframe) @ inverse(record.T_c_r)
 
 
 FrameObserver = Callable[[StereoFrame, TrackedFrame], None]
@@ -86,8 +121,10 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
-        self.tracker = Tracker(sequence.camera, config)
-        self.result = RunResult()
+        world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
+        self.local_mapping = None if world_map is None else LocalMapping(world_map, sequence.camera, config)
+        self.tracker = Tracker(sequence.camera, config, world_map)
+        self.result = RunResult(map=world_map)
         self._observer = observer
 
     def process_frame(self, index: int) -> FrameRecord:
@@ -103,28 +140,68 @@ class System:
             frame = self.sequence[index]
         except DatasetError as error:
             tracked = self.tracker.skip()
+            reference = self.tracker.reference_keyframe_id
             record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts,
-                                 {"total": _ms_since(start)}, skipped_reason=str(error))
+                                 {"total": _ms_since(start)}, skipped_reason=str(error), reference_keyframe=reference,
+                                 T_c_r=self._pose_to_reference(tracked.T_w_c, reference))
             self._add(record, start)
             return record
         loaded = time.perf_counter()
+        ggs = self.config.ggs if self.local_mapping is not None else None
         features = extract_stereo_features(
-            frame.left, frame.right, self.sequence.camera, self.config.points, self.config.lines
+            frame.left, frame.right, self.sequence.camera, self.config.points, self.config.lines, ggs
         )
         extracted = time.perf_counter()
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
+        mapped = time.perf_counter()
+        reference = self._map_frame(index, timestamp, features, tracked)
+        T_c_r = self._pose_to_reference(tracked.T_w_c, reference)
+        if tracked.keyframe is not None:
+            stage_ms["mapping"] = _ms_since(mapped)
+            T_c_r = np.eye(4)
         stage_ms["total"] = _ms_since(start)
         truth = moving_mask if moving_mask is not None else self.sequence.dynamic_mask(index)
         point_counts, line_counts = _label_counts_against(truth, tracked.dynamic)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
                              n_points=len(features.points), n_lines=len(features.lines),
-                             dynamic_points=point_counts, dynamic_lines=line_counts)
+                             dynamic_points=point_counts, dynamic_lines=line_counts,
+                             reference_keyframe=reference, T_c_r=T_c_r,
+                             keyframe=tracked.keyframe if self.local_mapping is not None else None)
         self._add(record, start)
         if self._observer is not None:
             self._observer(frame, tracked)
         return record
+
+    def _map_frame(self, index: int, timestamp: float, features: StereoFeatures, tracked: TrackedFrame) -> int | None:
+        """Local mapping's share of a tracked frame; returns the frame's reference keyframe (None without a map).
+
+        The frame's sightings of landmarks go to local mapping's counters; a frame the
+        tracker names a keyframe is inserted (and becomes the tracker's reference keyframe).
+        """
+        mapping = self.local_mapping
+        if mapping is None:
+            return None
+        if tracked.map is not None and tracked.status is TrackingStatus.TRACKED:
+            found = tracked.map
+            mapping.record_tracking(
+                visible=(found.visible_point_ids, found.visible_line_ids),
+                found=(found.point_ids[found.point_ids >= 0], found.line_ids[found.line_ids >= 0]),
+                dynamic=(found.dynamic_point_ids, found.dynamic_line_ids),
+            )
+        if tracked.keyframe is None:
+            return self.tracker.reference_keyframe_id
+        keyframe = _new_keyframe(mapping.map.next_keyframe_id(), index, timestamp, features, tracked)
+        self.result.insertions.append(mapping.insert_keyframe(keyframe))
+        self.tracker.use_keyframe(keyframe)
+        return keyframe.id
+
+    def _pose_to_reference(self, T_w_c: np.ndarray, reference: int | None) -> np.ndarray | None:
+        """``T_c_r``: the frame's pose relative to its reference keyframe's current pose (None without one)."""
+        if reference is None:
+            return None
+        return inverse(T_w_c) @ self.local_mapping.map.keyframe_T_w_c(reference)
 
     def run(self, max_frames: int | None = None,
             progress: Callable[[Iterable[int]], Iterable[int]] = iter) -> RunResult:
@@ -149,6 +226,25 @@ class System:
     def _add(self, record: FrameRecord, start: float) -> None:
         self.result.records.append(record)
         self.result.wall_seconds += time.perf_counter() - start
+
+
+def _new_keyframe(
+    keyframe_id: int, index: int, timestamp: float, features: StereoFeatures, tracked: TrackedFrame
+) -> KeyFrame:
+    """The keyframe of a tracked frame: its features, the landmarks it tracked, its dynamic labels."""
+    found = tracked.map
+    return KeyFrame(
+        id=keyframe_id,
+        frame_index=index,
+        timestamp=timestamp,
+        T_c_w=inverse(tracked.T_w_c),
+        features=features,
+        ggs=features.ggs,
+        point_ids=np.full(len(features.keypoints), -1) if found is None else found.point_ids.copy(),
+        line_ids=np.full(len(features.lines), -1) if found is None else found.line_ids.copy(),
+        point_dynamic=tracked.point_dynamic,
+        line_dynamic=tracked.line_dynamic,
+    )
 
 
 def _label_counts_against(

@@ -21,6 +21,13 @@ def test_every_library_package_is_installed():
 
 def test_cli_installs_as_pld_slam_cli_not_cli():
     tool = _pyproject()["tool"]["setuptools"]
-    assert tool["package-dir"] == {"pld_slam_cli": "cli"}
+    assert tool["package-dir"]["pld_slam_cli"] == "cli"
     assert "cli" not in tool["packages"]
     assert _pyproject()["project"]["scripts"]["pld-slam"].startswith("pld_slam_cli.")
+
+
+def test_config_files_install_as_package_data():
+    tool = _pyproject()["tool"]["setuptools"]
+    assert tool["package-dir"]["pld_slam.configs"] == "configs"
+    assert "pld_slam.configs" in tool["packages"]
+    assert tool["package-data"]["pld_slam.configs"] == ["*.yaml"]

@@ -9,25 +9,30 @@ from scipy.optimize import least_squares
 
 from pld_slam.geometry.se3 import inverse, se3_exp, so3_log, transform_points
 from pld_slam.optim.line_reprojection import detected_line_directions
+from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
 from pld_slam.optim.pose_only import (
-    LineObservations,
-    PointObservations,
     PoseOnlyOptions,
     PoseOnlyStatus,
     _PoseProblem,
-    _WhitenedRows,
-    huber_without_curvature,
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
+from pld_slam.optim.robust import huber_without_curvature
 
 INITIAL_ERROR = np.array([0.15, -0.05, 0.2, 0.02, -0.03, 0.015])  # ~2 degrees and 25 cm
 
 
 def observe_points(rng: np.random.Generator, T_c_w: np.ndarray, n: int, noise_px: float) -> PointObservations:
-    """Stereo observations of n world points in view: noise of std ``noise_px``, declared sigma 1 px."""
+    """Stereo observations of n world points in view, declared sigma 1 px.
+
+    Noise as the cost models it (`pld_slam.optim.observations`): std ``noise_px`` on the
+    corner ``(u_left, v)``, and an independent one of the same std on the disparity.
+    """
     points_w = random_points_in_view(rng, T_c_w, n)
-    stereo_px = CAMERA.project_stereo(transform_points(T_c_w, points_w)) + rng.normal(0.0, noise_px, (n, 3))
+    exact = CAMERA.project_stereo(transform_points(T_c_w, points_w))
+    corner = rng.normal(0.0, noise_px, (n, 2))
+    disparity = exact[:, 0] - exact[:, 2] + rng.normal(0.0, noise_px, n)
+    stereo_px = np.column_stack([exact[:, :2] + corner, exact[:, 0] + corner[:, 0] - disparity])
     return PointObservations(points_w, stereo_px, np.ones(n))
 
 
@@ -83,7 +88,7 @@ def test_solver_jacobian_matches_central_differences_away_from_the_initial_pose(
     rng = np.random.default_rng(5)
     T_true = random_pose(rng)
     points, lines = observe_points(rng, T_true, 20, 1.0), observe_lines(rng, T_true, 10, 1.0)
-    problem = _PoseProblem(CAMERA, perturbed(T_true), _WhitenedRows.of(points, lines, lines), min_depth=1e-3)
+    problem = _PoseProblem(CAMERA, perturbed(T_true), WhitenedRows.of(points, lines, lines), min_depth=1e-3)
     x, h = rng.normal(0.0, 0.05, 6), 1e-6
     numeric = np.column_stack(
         [
@@ -109,7 +114,7 @@ def test_huber_without_curvature_has_the_optimum_of_scipys_huber():
     rng = np.random.default_rng(7)
     T_true = random_pose(rng)
     points, lines = observe_points(rng, T_true, 100, 1.0), observe_lines(rng, T_true, 30, 1.0)
-    problem = _PoseProblem(CAMERA, T_true, _WhitenedRows.of(points, lines, lines), min_depth=1e-3)
+    problem = _PoseProblem(CAMERA, T_true, WhitenedRows.of(points, lines, lines), min_depth=1e-3)
     solutions = [
         least_squares(problem.residuals, np.zeros(6), jac=problem.jacobian, loss=loss, f_scale=2.0, ftol=1e-12).x
         for loss in ("huber", huber_without_curvature)
@@ -117,17 +122,52 @@ def test_huber_without_curvature_has_the_optimum_of_scipys_huber():
     assert np.allclose(solutions[0], solutions[1], rtol=0.0, atol=1e-9)
 
 
-def test_chi2_is_the_squared_residual_norm_over_sigma_squared():
+def chi2_at(T_c_w: np.ndarray, points: PointObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's chi2 at ``T_c_w`` and its inlier test, without solving."""
+    rows = WhitenedRows.of(points, LineObservations.empty(), LineObservations.empty())
+    point_chi2, _, _ = rows.chi2(rows.evaluate(CAMERA, T_c_w, T_c_w, 1e-3))
+    options = PoseOnlyOptions()
+    return point_chi2, rows.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point)
+
+
+def test_chi2_is_the_squared_whitened_norm_of_the_image_and_disparity_errors():
+    """A stereo point's rows are u_left / sigma, v / sigma and (u_left - u_right) / sigma_d."""
     rng = np.random.default_rng(6)
     T_true = random_pose(rng)
-    points = observe_points(rng, T_true, 30, 0.0)
+    points = observe_points(rng, T_true, 15, 0.0)
     stereo_px = points.stereo_px.copy()
     stereo_px[:5] += [6.0, -8.0, 6.0]  # 10 px off in the image, the disparity kept
-    points = dataclasses.replace(points, stereo_px=stereo_px, sigma_px=np.full(30, 2.0))
-    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points)
-    assert np.allclose(result.point_chi2[:5], (36.0 + 64.0 + 36.0) / 4.0)
-    assert np.allclose(result.point_chi2[5:], 0.0, atol=1e-12)
-    assert result.inliers.points.tolist() == [False] * 5 + [True] * 25
+    stereo_px[5:10, 2] += 1.0  # the disparity 1 px short, the left pixel kept
+    points = dataclasses.replace(points, stereo_px=stereo_px, sigma_px=np.tile([2.0, 2.0, 0.5], (15, 1)))
+    point_chi2, inliers = chi2_at(T_true, points)
+    np.testing.assert_allclose(point_chi2, [25.0] * 5 + [4.0] * 5 + [0.0] * 5, atol=1e-9)
+    assert inliers.tolist() == [False] * 5 + [True] * 10
+
+
+def test_a_point_without_u_right_is_a_monocular_observation_with_a_two_dof_bound():
+    rng = np.random.default_rng(7)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 9, 0.0)
+    stereo_px = points.stereo_px.copy()
+    stereo_px[:, 0] += np.repeat([2.6, 2.2, 0.0], 3)  # chi2 6.76, 4.84, 0
+    stereo_px[:6, 2] = np.nan  # the first six seen in the left image only
+    point_chi2, inliers = chi2_at(T_true, dataclasses.replace(points, stereo_px=stereo_px))
+    np.testing.assert_allclose(point_chi2, np.repeat([2.6**2, 2.2**2, 0.0], 3), atol=1e-9)
+    # 6.76 fails the 2-dof bound 5.991; a stereo point with the same error would pass 7.815.
+    assert inliers.tolist() == [False] * 3 + [True] * 6
+
+
+def test_monocular_points_alone_fix_the_pose():
+    rng = np.random.default_rng(8)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 60, 0.0)
+    stereo_px = points.stereo_px.copy()
+    stereo_px[:, 2] = np.nan
+    monocular = dataclasses.replace(points, stereo_px=stereo_px)
+    result = optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), monocular)
+    assert result.success and result.inliers.points.all()
+    translation, rotation = pose_errors(result.T_c_w, T_true)
+    assert translation < 1e-6 and rotation < 1e-8
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -17,6 +17,7 @@ from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
+from pld_slam.geometry.se3 import inverse, se3_exp
 from pld_slam.io.run_output import PLOT, SUMMARY, TRAJECTORY_KITTI, TRAJECTORY_TUM, write_run_outputs
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.synth import write_sequence
@@ -25,7 +26,7 @@ from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 12
 ACCURACY_KEYS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched")
-TRACKING_STAGES = {"matching", "filters", "pose", "dynamic"}
+TRACKING_STAGES = {"matching", "filters", "pose", "dynamic", "local_map"}
 
 
 @pytest.fixture(scope="module")
@@ -69,6 +70,11 @@ def interrupt_at(system: System, k: int, error: BaseException, monkeypatch) -> N
     monkeypatch.setattr(system, "process_frame", process_frame)
 
 
+def tracked_poses(result) -> np.ndarray:
+    """The poses tracking gave each frame (the written ones also carry the later corrections of BA)."""
+    return np.array([r.T_w_c for r in result.records])
+
+
 def read_summary(out_dir) -> dict:
     return json.loads((out_dir / SUMMARY).read_text())
 
@@ -83,16 +89,43 @@ def test_a_run_keeps_one_record_per_frame_in_order(sequence, full_run):
     assert all(r.skipped_reason is None for r in full_run.records)
     assert all(r.n_points > 0 and r.n_lines > 0 for r in full_run.records)
     assert full_run.wall_seconds > 0.0
-    trajectory = full_run.trajectory()
-    assert len(trajectory) == N_FRAMES
-    assert np.array_equal(trajectory.poses[3], full_run.records[3].T_w_c)
+    assert len(full_run.trajectory()) == N_FRAMES
 
 
-def test_tracked_frames_time_every_stage_and_the_first_frame_only_loading_and_the_front_end(full_run):
+def test_without_a_map_the_trajectory_is_the_tracked_poses(sequence):
+    result = System(sequence, load_config(overrides=("mapping.enabled=false",))).run()
+    assert result.map is None and all(r.reference_keyframe is None for r in result.records)
+    assert np.array_equal(result.trajectory().poses, np.array([r.T_w_c for r in result.records]))
+
+
+def test_a_frame_pose_follows_later_corrections_of_its_reference_keyframe(full_run):
+    """Non-keyframe poses are stored relative to their reference keyframe (`System` docstring)."""
+    records = full_run.records
+    frame = next(r for r in records if r.keyframe is None and r.status is TrackingStatus.TRACKED)
+    keyframe = full_run.map.keyframes.get(frame.reference_keyframe)
+    assert keyframe is not None, "the reference keyframe of the chosen frame was culled"
+    before = full_run.trajectory().poses
+    correction = se3_exp(np.array([0.3, -0.1, 0.2, 0.01, 0.02, -0.03]))
+    original = keyframe.T_c_w.copy()
+    try:
+        keyframe.T_c_w = original @ correction
+        after = full_run.trajectory().poses
+    finally:
+        keyframe.T_c_w = original
+    moved = ~np.all(np.isclose(before, after, atol=1e-12), axis=(1, 2))
+    following = np.array([r.reference_keyframe == keyframe.id for r in records])
+    assert np.array_equal(moved, following)
+    # The frame keeps its pose relative to the keyframe.
+    relative = inverse(after[frame.index]) @ keyframe.T_w_c
+    np.testing.assert_allclose(relative, frame.T_c_r, atol=1e-9)
+
+
+def test_tracked_frames_time_every_stage_and_the_first_frame_only_loading_the_front_end_and_mapping(full_run):
     first, *tracked = full_run.records
-    assert set(first.stage_ms) == {"load", "frontend", "total"}
+    assert set(first.stage_ms) == {"load", "frontend", "mapping", "total"}
     for record in tracked:
-        assert set(record.stage_ms) == set(STAGES)
+        expected = set(STAGES) if record.keyframe is not None else set(STAGES) - {"mapping"}
+        assert set(record.stage_ms) == expected
         assert all(value >= 0.0 for value in record.stage_ms.values())
         parts = sum(value for stage, value in record.stage_ms.items() if stage != "total")
         assert record.stage_ms["total"] >= parts - 1e-6  # the stages are disjoint slices of the frame
@@ -102,7 +135,7 @@ def test_max_frames_runs_only_the_first_frames(sequence, config, full_run):
     result = System(sequence, config).run(max_frames=4)
     assert result.stop_reason is None
     assert [r.index for r in result.records] == [0, 1, 2, 3]
-    assert np.array_equal(result.trajectory().poses, full_run.trajectory().poses[:4])
+    assert np.array_equal(tracked_poses(result), tracked_poses(full_run)[:4])
 
 
 def test_run_passes_the_frame_indices_through_the_progress_wrapper(sequence, config):
@@ -164,7 +197,7 @@ def test_a_run_stopped_mid_way_reraises_and_keeps_the_frames_before(sequence, co
     result = system.result
     assert result.stop_reason == reason
     assert [r.index for r in result.records] == list(range(k))
-    assert np.array_equal(result.trajectory().poses, full_run.trajectory().poses[:k])
+    assert np.array_equal(tracked_poses(result), tracked_poses(full_run)[:k])
 
 
 def test_the_outputs_of_an_interrupted_run_hold_its_frames_and_say_it_did_not_complete(
@@ -250,7 +283,9 @@ def test_the_summary_of_a_whole_run(sequence, config, full_run):
     assert list(timing) == list(STAGES)
     for stage in STAGES:
         values = [r.stage_ms[stage] for r in full_run.records if stage in r.stage_ms]
-        assert len(values) == (N_FRAMES - 1 if stage in TRACKING_STAGES else N_FRAMES)
+        keyframes = sum(r.keyframe is not None for r in full_run.records)
+        expected = {"mapping": keyframes}.get(stage, N_FRAMES - 1 if stage in TRACKING_STAGES else N_FRAMES)
+        assert len(values) == expected
         assert timing[stage] == {"median": pytest.approx(np.median(values)), "mean": pytest.approx(np.mean(values))}
 
     period = float(np.median(np.diff(sequence.timestamps)))

@@ -5,6 +5,8 @@
 too few frames overlap it.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from pld_slam.config import Config, config_to_dict
@@ -99,8 +101,14 @@ def _median_or_none(values: list[int]) -> float | None:
     return float(np.median(values)) if values else None
 
 
-def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -> dict:
-    """JSON-ready summary of a run on ``sequence`` (see the module docstring)."""
+def summarise_run(
+    sequence: StereoSequence, result: RunResult, config: Config, config_sources: Sequence[str] | None = None
+) -> dict:
+    """JSON-ready summary of a run on ``sequence`` (see the module docstring).
+
+    ``config_sources`` (`RunConfig.sources`: defaults, family file, ``--config`` files,
+    ``--set`` overrides) is written as ``config_sources``, null when not given.
+    """
     records = result.records
     return {
         "sequence": sequence.name,
@@ -124,4 +132,5 @@ def summarise_run(sequence: StereoSequence, result: RunResult, config: Config) -
         },
         "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
+        "config_sources": None if config_sources is None else list(config_sources),
     }

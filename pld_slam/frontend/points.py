@@ -39,8 +39,13 @@ which that scheme amounts to on rectified images, and decide what neither fixes:
   on KITTI, where a 0.2 px error is a 6 % depth error), and start at 3 baselines
   (1.6 m on KITTI, 0.33 m on EuRoC): the few KITTI matches nearer than that were wrong.
 
-Only stereo-matched points are kept: a point without disparity has no depth, and every
-later stage of this stereo system (pose, map points, BA) starts from 3D points.
+Stereo points (`StereoPoints`) are the ones with a depth: tracking against the reference
+frame, the dynamic detectors and new map points start from them. The map also needs
+the others: a map point is found again in a later frame wherever its corner is detected
+in the left image, stereo-matched there or not (on KITTI about 600 of the 2,000 left
+corners have a stereo match; ORB-SLAM2 likewise tracks map points in keypoints without
+one, as monocular observations). `LeftKeypoints` holds every left keypoint, the stereo
+points first.
 """
 
 from dataclasses import dataclass
@@ -110,6 +115,43 @@ class StereoPoints:
 
     def __len__(self) -> int:
         return self.uv.shape[0]
+
+
+@dataclass(frozen=True)
+class LeftKeypoints:
+    """Every bucketed ORB keypoint of the left image: the stereo points first, then the others.
+
+    Rows ``0 .. n_stereo - 1`` are the `StereoPoints` of the same pair, in the same order
+    (a stereo point has the same index in both); the rest found no stereo match.
+
+    Attributes
+    ----------
+    uv : (N, 2) float64
+        Left-image pixels (u, v).
+    octave : (N,) int64
+        ORB pyramid level.
+    descriptors : (N, 32) uint8
+        ORB descriptors.
+    u_right : (N,) float64
+        Right-image column [px] of the stereo points, NaN for the others.
+    n_stereo : int
+        How many rows are stereo points.
+    """
+
+    uv: np.ndarray
+    octave: np.ndarray
+    descriptors: np.ndarray
+    u_right: np.ndarray
+    n_stereo: int
+
+    def __len__(self) -> int:
+        return self.uv.shape[0]
+
+    @classmethod
+    def empty(cls) -> "LeftKeypoints":
+        """No keypoints."""
+        return cls(np.zeros((0, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, DESCRIPTOR_BYTES), dtype=np.uint8),
+                   np.zeros(0), 0)
 
 
 def detect_image_points(image: np.ndarray, config: PointsConfig) -> ImagePoints:
@@ -349,10 +391,14 @@ def refine_right_columns(
     return u_right, valid
 
 
-def match_stereo_points(
+def stereo_match_indices(
     left: ImagePoints, right: ImagePoints, camera: StereoCamera, config: PointsConfig
-) -> StereoPoints:
-    """Stereo points of a rectified pair: candidates, descriptor match, sub-pixel disparity, depth."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The left keypoints with a stereo match (K,) int64, their disparity (K,) and right column (K,) [px].
+
+    Candidates, descriptor match and sub-pixel disparity as the module docstring says;
+    matches outside the depth limits are dropped.
+    """
     d_min, d_max = disparity_limits(camera, config.min_depth_baselines, config.max_depth_baselines)
     query, train = row_band_candidates(left, right, config, d_min, d_max)
     distance = hamming_distances(left.descriptors[query], right.descriptors[train])
@@ -364,7 +410,21 @@ def match_stereo_points(
     index = matches.query
     disparity = left.uv[index, 0] - u_right
     keep = valid & (disparity >= d_min) & (disparity <= d_max)
-    index, disparity, u_right = index[keep], disparity[keep], u_right[keep]
+    return index[keep], disparity[keep], u_right[keep]
+
+
+def match_stereo_points(
+    left: ImagePoints, right: ImagePoints, camera: StereoCamera, config: PointsConfig
+) -> StereoPoints:
+    """Stereo points of a rectified pair: candidates, descriptor match, sub-pixel disparity, depth."""
+    index, disparity, u_right = stereo_match_indices(left, right, camera, config)
+    return stereo_points(left, index, disparity, u_right, camera)
+
+
+def stereo_points(
+    left: ImagePoints, index: np.ndarray, disparity: np.ndarray, u_right: np.ndarray, camera: StereoCamera
+) -> StereoPoints:
+    """The `StereoPoints` of left keypoints ``index`` (K,) with their disparity and right column (K,)."""
     return StereoPoints(
         uv=left.uv[index],
         octave=left.octave[index],
@@ -373,3 +433,11 @@ def match_stereo_points(
         u_right=u_right,
         points_c=camera.triangulate(left.uv[index], disparity),
     )
+
+
+def left_keypoints(left: ImagePoints, index: np.ndarray, u_right: np.ndarray) -> LeftKeypoints:
+    """Every left keypoint, the stereo-matched ones ``index`` (K,) first with their right columns (K,)."""
+    others = np.setdiff1d(np.arange(len(left.uv)), index)
+    order = np.concatenate([index, others])
+    right_columns = np.concatenate([u_right, np.full(len(others), np.nan)])
+    return LeftKeypoints(left.uv[order], left.octave[order], left.descriptors[order], right_columns, len(index))

@@ -160,5 +160,7 @@ def rotation_angle(R: np.ndarray) -> np.ndarray:
 
 
 def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
-    """Points (N, 3) in frame b mapped into frame a."""
+    """Points (N, 3) in frame b mapped into frame a, by one pose (4, 4) or one pose per point (N, 4, 4)."""
+    if T_a_b.ndim == 3:
+        return np.einsum("nij,nj->ni", T_a_b[:, :3, :3], p_b) + T_a_b[:, :3, 3]
     return p_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]

@@ -14,6 +14,7 @@ from pld_slam.optim.line_reprojection import (
     line_horizontal_error,
     line_vertical_error,
 )
+from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.point_reprojection import (
     MIN_DEPTH,
     PointReprojection,
@@ -22,18 +23,13 @@ from pld_slam.optim.point_reprojection import (
     project_stereo_with_jacobians,
 )
 from pld_slam.optim.pose_only import (
-    CHI2_95_2DOF,
-    CHI2_95_3DOF,
-    HUBER_SCALE,
-    LineObservations,
-    ObservationMasks,
-    PointObservations,
     PoseOnlyOptions,
     PoseOnlyResult,
     PoseOnlyStatus,
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, HUBER_SCALE, huber_without_curvature
 
 __all__ = [
     "CHI2_95_2DOF",
@@ -52,6 +48,7 @@ __all__ = [
     "detected_line_coefficients",
     "detected_line_directions",
     "endpoints_away_from_border",
+    "huber_without_curvature",
     "line_horizontal_error",
     "line_vertical_error",
     "optimize_pose",

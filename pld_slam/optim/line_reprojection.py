@@ -52,6 +52,7 @@ from pld_slam.optim.point_reprojection import (
     MIN_DEPTH,
     clamped_stereo_pixel_jacobian,
     pose_jacobian_from_camera_gradient,
+    times_rotation,
     to_camera_frame,
 )
 
@@ -188,7 +189,7 @@ def line_horizontal_rows(
 def line_row_errors(
     camera: StereoCamera, T_c_w: np.ndarray, rows: LineErrorRows, min_depth: float = MIN_DEPTH
 ) -> LineRowErrors:
-    """The values of line error rows at ``T_c_w`` (4, 4), with Jacobians.
+    """The values of line error rows at ``T_c_w`` (4, 4), or one pose per row (M, 4, 4), with Jacobians.
 
     An endpoint at depth ``<= min_depth`` [m] is projected at that depth and flags its row
     not valid (module docstring). Only the left-image rows of the projection are formed:
@@ -202,7 +203,7 @@ def line_row_errors(
     return LineRowErrors(
         residual=_row_dot(rows.axes, camera.project(seen.clamped)) + rows.offsets,
         jac_pose=pose_jacobian_from_camera_gradient(seen.p_c, gradient[:, None])[:, 0],
-        jac_endpoint=gradient @ T_c_w[:3, :3],
+        jac_endpoint=times_rotation(gradient[:, None], T_c_w[..., :3, :3])[:, 0],
         valid=seen.valid,
     )
 

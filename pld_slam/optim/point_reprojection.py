@@ -2,7 +2,8 @@
 
 Pose convention, shared by every residual of `pld_slam.optim`
 -------------------------------------------------------------
-The optimised pose is ``T_c_w`` (world to left camera). It is perturbed on the left,
+The optimised pose is ``T_c_w`` (world to left camera): one (4, 4) for all observations
+(pose-only), or one per observation (N, 4, 4) (bundle adjustment). It is perturbed on the left,
 ``T_c_w <- se3_exp(delta) @ T_c_w``, with the twist ``delta = (rho, phi)`` (translation
 first, as in `pld_slam.geometry.se3`). A camera-frame point ``p_c = R p_w + t`` then
 moves by ``d p_c / d delta = [I, -hat(p_c)]`` (3, 6), and ``d p_c / d p_w = R`` (3, 3).
@@ -127,7 +128,7 @@ def stereo_pixel_jacobian(camera: StereoCamera, p_c: np.ndarray) -> np.ndarray:
 
 
 def to_camera_frame(T_c_w: np.ndarray, points_w: np.ndarray, min_depth: float = MIN_DEPTH) -> CameraFramePoints:
-    """World points (N, 3) seen from ``T_c_w`` (4, 4), depth clamped at ``min_depth`` [m]."""
+    """World points (N, 3) seen from ``T_c_w`` (4, 4) or (N, 4, 4), depth clamped at ``min_depth`` [m]."""
     p_c = transform_points(T_c_w, points_w)
     clamped = p_c.copy()
     np.maximum(clamped[:, 2], min_depth, out=clamped[:, 2])
@@ -147,7 +148,7 @@ def clamped_stereo_pixel_jacobian(camera: StereoCamera, points: CameraFramePoint
 def project_stereo_with_jacobians(
     camera: StereoCamera, T_c_w: np.ndarray, points_w: np.ndarray, min_depth: float = MIN_DEPTH
 ) -> StereoProjection:
-    """Stereo pixels of world points (N, 3) seen from ``T_c_w`` (4, 4), with Jacobians.
+    """Stereo pixels of world points (N, 3) seen from ``T_c_w`` (4, 4) or (N, 4, 4), with Jacobians.
 
     Points at depth ``<= min_depth`` [m] are flagged not valid and projected at depth
     ``min_depth`` (module docstring).
@@ -157,16 +158,19 @@ def project_stereo_with_jacobians(
     return StereoProjection(
         pixels=camera.project_stereo(seen.clamped),
         jac_pose=pose_jacobian_from_camera_gradient(seen.p_c, d_pixels_d_pc),
-        jac_point=_times_rotation(d_pixels_d_pc, T_c_w[:3, :3]),
+        jac_point=times_rotation(d_pixels_d_pc, T_c_w[..., :3, :3]),
         valid=seen.valid,
     )
 
 
-def _times_rotation(jac: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``jac @ R`` (N, k, 3) for Jacobians (N, k, 3) and one rotation (3, 3).
+def times_rotation(jac: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``jac @ R`` (N, k, 3) for Jacobians (N, k, 3) and one rotation (3, 3) or one per row (N, 3, 3).
 
-    One (N k, 3) x (3, 3) product: measured 5x faster than numpy's batched matmul for N = 700.
+    One rotation: one (N k, 3) x (3, 3) product, measured 5x faster than numpy's batched
+    matmul for N = 700.
     """
+    if R.ndim == 3:
+        return np.einsum("nkj,nji->nki", jac, R)
     return (jac.reshape(-1, 3) @ R).reshape(jac.shape)
 
 
@@ -182,7 +186,7 @@ def point_reprojection_error(
     Parameters
     ----------
     camera : the rectified stereo camera.
-    T_c_w : (4, 4) world-to-left-camera pose.
+    T_c_w : (4, 4) world-to-left-camera pose, or one per point (N, 4, 4).
     points_w : (N, 3) points in the world frame [m].
     stereo_px : (N, 3) observed ``(u_left, v, u_right)`` [px].
     min_depth : smallest depth [m] at which a point counts as in front of the camera.

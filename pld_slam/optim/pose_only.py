@@ -11,11 +11,10 @@ and `line_reprojection` are w.r.t. a left perturbation ``delta`` of ``T_c_w(x)``
 ``se3_exp(x + dx) = se3_exp(J_l(x) dx) @ se3_exp(x)`` to first order, the Jacobian w.r.t.
 ``x`` is theirs times the SE(3) left Jacobian ``J_l(x)`` (`pld_slam.geometry.se3.se3_left_jacobian`).
 
-Whitening. The paper leaves the covariances open. Every observation gets an isotropic
-pixel sigma, ``Sigma = sigma**2 I``, shared by all rows of its term: stereo points
-``sigma = 1.2**octave`` (as ORB-SLAM2), lines a sigma per observation used for both line
-terms. Residual rows and their Jacobian rows are divided by sigma, so all residuals are
-in whitened (unit-variance) units.
+Whitening. The residual rows are those of `pld_slam.optim.observations`, shared with
+bundle adjustment: each divided by its observation's pixel sigma (the paper leaves the
+covariances open; that module says what we chose), so all residuals are in whitened
+(unit-variance) units.
 
 Robust loss. A Huber loss with ``f_scale`` in whitened units, `huber_without_curvature`
 (scipy's ``"huber"`` values and slopes, but the reweighting model of g2o: its docstring
@@ -61,29 +60,22 @@ failure too.
 
 import dataclasses
 import enum
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, se3_left_jacobian
-from pld_slam.optim.line_reprojection import (
-    LineErrorRows,
-    line_horizontal_rows,
-    line_row_errors,
-    line_vertical_rows,
+from pld_slam.optim.observations import (
+    LineObservations,
+    ObservationMasks,
+    PointObservations,
+    RowEvaluation,
+    WhitenedRows,
 )
-from pld_slam.optim.point_reprojection import MIN_DEPTH, point_reprojection_error
-
-CHI2_95_2DOF = 5.991
-"""95% quantile of the chi-square distribution with 2 dof: the test of a line term."""
-CHI2_95_3DOF = 7.815
-"""95% quantile of the chi-square distribution with 3 dof: the test of a stereo point."""
-HUBER_SCALE = float(np.sqrt(3.841))
-"""Default Huber scale [whitened units]: sqrt of the 1-dof 95% chi-square quantile."""
+from pld_slam.optim.point_reprojection import MIN_DEPTH
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, HUBER_SCALE, huber_without_curvature
 
 _STOPPING_TOLERANCES = dict(ftol=1e-5, xtol=1e-8, gtol=1e-8)
 """`least_squares` stopping rule: scipy's defaults but ``ftol``, the relative cost decrease of
@@ -95,55 +87,6 @@ _GRAM_RATIO_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
-class PointObservations:
-    """N stereo observations of world points.
-
-    Attributes
-    ----------
-    points_w : (N, 3) landmark positions in the world frame [m].
-    stereo_px : (N, 3) observed ``(u_left, v, u_right)`` [px].
-    sigma_px : (N,) pixel standard deviation of each observation (``1.2**octave``), or (N, 3)
-        one per row ``u_left, v, u_right``.
-    """
-
-    points_w: np.ndarray
-    stereo_px: np.ndarray
-    sigma_px: np.ndarray
-
-    @classmethod
-    def empty(cls) -> "PointObservations":
-        """No point observations."""
-        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-
-
-@dataclass(frozen=True)
-class LineObservations:
-    """M observations of world segments as detected segments in the left image.
-
-    Attributes
-    ----------
-    start_w, end_w : (M, 3) world endpoints ``P``, ``Q`` [m], ``P`` matched to ``start_px``.
-    start_px, end_px : (M, 2) detected endpoints ``s``, ``e`` in the left image [px].
-    sigma_px : (M,) pixel standard deviation of each observation, for both line terms.
-    horizontal_eligible : (M,) bool, the horizontal term may be used (endpoints away from
-        the border: `pld_slam.optim.line_reprojection.endpoints_away_from_border`).
-    """
-
-    start_w: np.ndarray
-    end_w: np.ndarray
-    start_px: np.ndarray
-    end_px: np.ndarray
-    sigma_px: np.ndarray
-    horizontal_eligible: np.ndarray
-
-    @classmethod
-    def empty(cls) -> "LineObservations":
-        """No line observations."""
-        no_points, no_pixels = np.zeros((0, 3)), np.zeros((0, 2))
-        return cls(no_points, no_points, no_pixels, no_pixels, np.zeros(0), np.zeros(0, dtype=bool))
-
-
-@dataclass(frozen=True)
 class PoseOnlyOptions:
     """Settings of the pose-only solve (the module docstring explains the choices).
 
@@ -151,8 +94,8 @@ class PoseOnlyOptions:
     ----------
     use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
     huber_scale : Huber ``f_scale`` [whitened units] of the robust rounds.
-    chi2_point, chi2_line : chi-square inlier thresholds of a stereo point (3 dof) and of
-        a line term (2 dof).
+    chi2_point, chi2_monocular_point, chi2_line : chi-square inlier thresholds of a stereo
+        point (3 dof), a point seen in the left image only (2 dof) and a line term (2 dof).
     rounds, robust_rounds : solves of `optimize_pose_rejecting_outliers`, and how many of
         the first use the Huber loss.
     max_nfev : residual evaluations allowed per solve.
@@ -165,6 +108,7 @@ class PoseOnlyOptions:
     use_line_horizontal: bool = True
     huber_scale: float = HUBER_SCALE
     chi2_point: float = CHI2_95_3DOF
+    chi2_monocular_point: float = CHI2_95_2DOF
     chi2_line: float = CHI2_95_2DOF
     rounds: int = 4
     robust_rounds: int = 3
@@ -172,33 +116,6 @@ class PoseOnlyOptions:
     min_residuals: int = 12
     rank_tolerance: float = 1e-9
     min_depth: float = MIN_DEPTH
-
-
-@dataclass(frozen=True)
-class ObservationMasks:
-    """Which observations a solve uses, or which passed the chi-square tests.
-
-    Attributes
-    ----------
-    points : (N,) bool, per point observation.
-    lines : (M,) bool, per line observation (its vertical term, and the line as a whole).
-    line_horizontal : (M,) bool, per line observation, its horizontal term.
-    """
-
-    points: np.ndarray
-    lines: np.ndarray
-    line_horizontal: np.ndarray
-
-    @classmethod
-    def all_usable(
-        cls, points: PointObservations, lines: LineObservations, options: PoseOnlyOptions
-    ) -> "ObservationMasks":
-        """Every observation, and the horizontal term wherever it is eligible and switched on."""
-        return cls(
-            points=np.ones(len(points.sigma_px), dtype=bool),
-            lines=np.ones(len(lines.sigma_px), dtype=bool),
-            line_horizontal=lines.horizontal_eligible & options.use_line_horizontal,
-        )
 
 
 class PoseOnlyStatus(enum.Enum):
@@ -270,9 +187,9 @@ def optimize_pose(
     """
     points = PointObservations.empty() if points is None else points
     lines = LineObservations.empty() if lines is None else lines
-    include = ObservationMasks.all_usable(points, lines, options) if include is None else include
-    every_row = _WhitenedRows.of(points, lines, lines)
-    at_init = every_row.evaluate(camera, T_c_w_init, options.min_depth)
+    include = ObservationMasks.all_usable(points, lines, options.use_line_horizontal) if include is None else include
+    every_row = WhitenedRows.of(points, lines, lines)
+    at_init = every_row.evaluate(camera, T_c_w_init, T_c_w_init, options.min_depth)
     result, _ = _solve_round(camera, T_c_w_init, every_row, at_init, lines, options, include, robust)
     return result
 
@@ -295,9 +212,9 @@ def optimize_pose_rejecting_outliers(
     """
     points = PointObservations.empty() if points is None else points
     lines = LineObservations.empty() if lines is None else lines
-    include = ObservationMasks.all_usable(points, lines, options)
-    every_row = _WhitenedRows.of(points, lines, lines)
-    T_c_w, at_pose = T_c_w_init, every_row.evaluate(camera, T_c_w_init, options.min_depth)
+    include = ObservationMasks.all_usable(points, lines, options.use_line_horizontal)
+    every_row = WhitenedRows.of(points, lines, lines)
+    T_c_w, at_pose = T_c_w_init, every_row.evaluate(camera, T_c_w_init, T_c_w_init, options.min_depth)
     nfev, rounds, round_index = 0, 0, 0
     while round_index < options.rounds:
         robust = round_index < options.robust_rounds
@@ -309,145 +226,6 @@ def optimize_pose_rejecting_outliers(
         T_c_w, include = result.T_c_w, result.inliers
         round_index = _first_round_with_another_loss(round_index, options) if fixed_point else round_index + 1
     return dataclasses.replace(result, nfev=nfev, rounds=rounds)
-
-
-def huber_without_curvature(z: np.ndarray) -> np.ndarray:
-    """Huber loss of squared scaled residuals ``z`` (m,) for `least_squares`: rows rho, rho', 0 (3, m).
-
-    ``rho(z) = z`` for ``z <= 1``, ``2 sqrt(z) - 1`` beyond, as scipy's ``"huber"``, but with
-    the second derivative reported as 0. scipy's trust-region model scales each row by
-    ``sqrt(rho' + 2 z rho'')`` (Triggs' correction); beyond the scale that is
-    ``sqrt(z**-0.5 - z**-0.5) = 0``, clipped to ``sqrt(EPS)``: every residual beyond the
-    scale drops out of the model. From a constant-velocity guess (0.2 m / 1 deg off) most
-    residuals start there, and with scipy's ``"huber"`` the first round took a median of
-    15.5 evaluations (``tr_solver="exact"``) or failed to converge in 100 (``"lsmr"``).
-    With rho'' = 0 the rows are scaled by ``sqrt(rho')``, the iteratively reweighted
-    least-squares model of g2o (ORB-SLAM2), which is also what Ceres' Corrector does
-    whenever rho'' <= 0: 5 evaluations, the same optimum (cost and gradient are unchanged).
-    """
-    root = np.sqrt(z)
-    rho = np.zeros((3, len(z)))
-    rho[0] = np.where(z <= 1.0, z, 2.0 * root - 1.0)
-    rho[1] = 1.0 / np.maximum(root, 1.0)  # 1 within the scale, z**-0.5 beyond
-    return rho
-
-
-class _Evaluation(NamedTuple):
-    """Whitened residual rows at one pose.
-
-    residual : (K,) whitened residuals; jac_delta : (K, 6) their Jacobian w.r.t. the left
-    perturbation ``delta`` of the pose; valid : (K,) bool, the row's landmark (point, or
-    line endpoint) lies deeper than ``min_depth``.
-    """
-
-    residual: np.ndarray
-    jac_delta: np.ndarray
-    valid: np.ndarray
-
-    def select(self, row_mask: np.ndarray) -> "_Evaluation":
-        """The rows where ``row_mask`` (K,) is True."""
-        return _Evaluation(self.residual[row_mask], self.jac_delta[row_mask], self.valid[row_mask])
-
-
-@dataclass(frozen=True)
-class _WhitenedRows:
-    """The residual rows of a solve, each divided by its observation's sigma.
-
-    Rows: 3 per point (``u_left, v, u_right``), then 2 per vertical line term, then 2 per
-    horizontal line term (start, end), as `LineErrorRows`.
-
-    Attributes
-    ----------
-    points_w, stereo_px : (N, 3) the points' world positions [m] and observations [px].
-    point_weight : (N, 3) ``1 / sigma`` of each point's rows.
-    line_rows : the 2 (Mv + Mh) whitened line rows.
-    n_vertical, n_horizontal : line observations Mv, Mh in each line term.
-    """
-
-    points_w: np.ndarray
-    stereo_px: np.ndarray
-    point_weight: np.ndarray
-    line_rows: LineErrorRows
-    n_vertical: int
-    n_horizontal: int
-
-    @classmethod
-    def of(
-        cls, points: PointObservations, vertical_lines: LineObservations, horizontal_lines: LineObservations
-    ) -> "_WhitenedRows":
-        """The rows of the points and of the two line terms of the given lines."""
-        vertical_rows = _whitened_line_rows(line_vertical_rows, vertical_lines)
-        horizontal_rows = _whitened_line_rows(line_horizontal_rows, horizontal_lines)
-        return cls(
-            points.points_w,
-            points.stereo_px,
-            1.0 / _point_row_sigmas(points.sigma_px),
-            LineErrorRows.concatenate([vertical_rows, horizontal_rows]),
-            len(vertical_lines.sigma_px),
-            len(horizontal_lines.sigma_px),
-        )
-
-    def row_mask(self, masks: ObservationMasks) -> np.ndarray:
-        """(K,) bool, the rows of the points, vertical terms and horizontal terms selected by ``masks``.
-
-        ``masks.lines`` selects vertical terms, ``masks.line_horizontal`` horizontal ones.
-        """
-        return np.concatenate(
-            [np.repeat(masks.points, 3), np.repeat(masks.lines, 2), np.repeat(masks.line_horizontal, 2)]
-        )
-
-    def select(self, row_mask: np.ndarray) -> "_WhitenedRows":
-        """The rows where ``row_mask`` (K,) is True (a point's or a line term's rows all or none)."""
-        point_mask = row_mask[: 3 * len(self.points_w) : 3]
-        line_mask = row_mask[3 * len(self.points_w) :]
-        vertical_rows = 2 * self.n_vertical
-        return _WhitenedRows(
-            self.points_w[point_mask],
-            self.stereo_px[point_mask],
-            self.point_weight[point_mask],
-            self.line_rows.select(line_mask),
-            int(np.sum(line_mask[:vertical_rows])) // 2,
-            int(np.sum(line_mask[vertical_rows:])) // 2,
-        )
-
-    def evaluate(self, camera: StereoCamera, T_c_w: np.ndarray, min_depth: float) -> _Evaluation:
-        """All rows at ``T_c_w`` (4, 4)."""
-        point = point_reprojection_error(camera, T_c_w, self.points_w, self.stereo_px, min_depth)
-        line = line_row_errors(camera, T_c_w, self.line_rows, min_depth)
-        return _Evaluation(
-            residual=np.concatenate([(point.residual * self.point_weight).ravel(), line.residual]),
-            jac_delta=np.concatenate([(point.jac_pose * self.point_weight[:, :, None]).reshape(-1, 6), line.jac_pose]),
-            valid=np.concatenate([np.repeat(point.valid, 3), line.valid]),
-        )
-
-    def chi2(self, evaluation: _Evaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Squared whitened norm of every point (N,), vertical term (Mv,) and horizontal term (Mh,).
-
-        ``inf`` where a row's landmark does not project (depth ``<= min_depth``).
-        """
-        squares = np.where(evaluation.valid, evaluation.residual**2, np.inf)
-        point_end = 3 * len(self.points_w)
-        vertical_end = point_end + 2 * self.n_vertical
-        return (
-            squares[:point_end].reshape(-1, 3).sum(axis=1),
-            squares[point_end:vertical_end].reshape(-1, 2).sum(axis=1),
-            squares[vertical_end:].reshape(-1, 2).sum(axis=1),
-        )
-
-
-def _point_row_sigmas(sigma_px: np.ndarray) -> np.ndarray:
-    """Sigmas (N, 3) of the ``u_left, v, u_right`` rows from one sigma per point (N,) or per row (N, 3)."""
-    sigma_px = np.asarray(sigma_px, dtype=np.float64)
-    per_row = sigma_px if sigma_px.ndim == 2 else sigma_px[:, None]
-    return np.broadcast_to(per_row, (len(sigma_px), 3))
-
-
-def _whitened_line_rows(
-    rows_of: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], LineErrorRows], lines: LineObservations
-) -> LineErrorRows:
-    """The rows of one line term (`line_vertical_rows` or `line_horizontal_rows`) divided by their sigma."""
-    rows = rows_of(lines.start_w, lines.end_w, lines.start_px, lines.end_px)
-    return rows.scaled(np.repeat(1.0 / lines.sigma_px, 2))
 
 
 class _PoseProblem:
@@ -462,9 +240,9 @@ class _PoseProblem:
         self,
         camera: StereoCamera,
         T_c_w_init: np.ndarray,
-        rows: _WhitenedRows,
+        rows: WhitenedRows,
         min_depth: float,
-        at_init: _Evaluation | None = None,
+        at_init: RowEvaluation | None = None,
     ) -> None:
         self._camera = camera
         self._T_c_w_init = T_c_w_init
@@ -483,12 +261,13 @@ class _PoseProblem:
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         """Jacobian (K, 6) of `residuals` w.r.t. ``x``: a new array (scipy scales it in place)."""
-        return self._evaluate(x).jac_delta @ se3_left_jacobian(x)
+        return self._evaluate(x).jac_pose @ se3_left_jacobian(x)
 
-    def _evaluate(self, x: np.ndarray) -> _Evaluation:
+    def _evaluate(self, x: np.ndarray) -> RowEvaluation:
         """The rows at ``x`` (6,), computed once per ``x``."""
         if self._cached_x is None or not np.array_equal(x, self._cached_x):
-            self._cached = self._rows.evaluate(self._camera, self.pose(x), self._min_depth)
+            pose = self.pose(x)
+            self._cached = self._rows.evaluate(self._camera, pose, pose, self._min_depth)
             self._cached_x = np.array(x, dtype=np.float64)
         return self._cached
 
@@ -496,13 +275,13 @@ class _PoseProblem:
 def _solve_round(
     camera: StereoCamera,
     T_c_w_init: np.ndarray,
-    every_row: _WhitenedRows,
-    at_init: _Evaluation,
+    every_row: WhitenedRows,
+    at_init: RowEvaluation,
     lines: LineObservations,
     options: PoseOnlyOptions,
     include: ObservationMasks,
     robust: bool,
-) -> tuple[PoseOnlyResult, _Evaluation]:
+) -> tuple[PoseOnlyResult, RowEvaluation]:
     """One solve from ``T_c_w_init`` (4, 4) with the ``include``d observations.
 
     ``every_row`` holds the rows of every observation (both line terms of every line) and
@@ -525,7 +304,7 @@ def _solve_round(
     )
     status = PoseOnlyStatus.CONVERGED if solution.status > 0 else PoseOnlyStatus.NOT_CONVERGED
     T_c_w = problem.pose(solution.x)
-    at_solution = every_row.evaluate(camera, T_c_w, options.min_depth)
+    at_solution = every_row.evaluate(camera, T_c_w, T_c_w, options.min_depth)
     return _result_at(T_c_w, status, every_row, at_solution, lines, options, solution.nfev, rounds=1), at_solution
 
 
@@ -547,7 +326,7 @@ def _method_settings(robust: bool, huber_scale: float) -> dict:
 
 
 def _drop_not_projecting(
-    every_row: _WhitenedRows, evaluation: _Evaluation, include: ObservationMasks
+    every_row: WhitenedRows, evaluation: RowEvaluation, include: ObservationMasks
 ) -> ObservationMasks:
     """``include`` without the observations with a landmark at depth ``<= min_depth`` in ``evaluation``."""
     point_chi2, vertical_chi2, _ = every_row.chi2(evaluation)
@@ -617,8 +396,8 @@ def _first_round_with_another_loss(round_index: int, options: PoseOnlyOptions) -
 def _result_at(
     T_c_w: np.ndarray,
     status: PoseOnlyStatus,
-    every_row: _WhitenedRows,
-    evaluation: _Evaluation,
+    every_row: WhitenedRows,
+    evaluation: RowEvaluation,
     lines: LineObservations,
     options: PoseOnlyOptions,
     nfev: int,
@@ -628,7 +407,7 @@ def _result_at(
     point_chi2, vertical_chi2, horizontal_chi2 = every_row.chi2(evaluation)
     line_inliers = vertical_chi2 <= options.chi2_line if options.use_line_vertical else np.isfinite(vertical_chi2)
     inliers = ObservationMasks(
-        points=point_chi2 <= options.chi2_point,
+        points=every_row.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
         lines=line_inliers,
         line_horizontal=line_inliers
         & lines.horizontal_eligible

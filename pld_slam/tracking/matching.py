@@ -62,7 +62,7 @@ def predict_pixels(camera: StereoCamera, T_c_p: np.ndarray, points_p: np.ndarray
     return pixels, in_front
 
 
-def _pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray, radius: np.ndarray):
+def pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray, radius: np.ndarray):
     """Candidate pairs ``(query, train)`` (P,) with ``|observed[train] - predicted[query]| <= radius[query]``.
 
     Observed pixels are sorted by column; each usable query takes the ones whose column
@@ -83,7 +83,7 @@ def _pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarra
     return query[within], train[within]
 
 
-def _select_matches(query, train, prev_descriptors, curr_descriptors, train_positions, max_distance, ratio):
+def select_matches(query, train, prev_descriptors, curr_descriptors, train_positions, max_distance, ratio):
     """The unambiguous best candidate of each query, each train feature used once."""
     distance = hamming_distances(prev_descriptors[query], curr_descriptors[train])
     matches = unique_train(best_matches(query, train, distance, train_positions[train], max_distance, ratio))
@@ -117,8 +117,8 @@ def match_points(
         return FrameMatches.empty()
     predicted, in_front = predict_pixels(camera, T_c_p, previous.points_c)
     radius = radius_px * scale_factor ** previous.octave.astype(np.float64)
-    query, train = _pairs_within(predicted, in_front, current.uv, radius)
-    return _select_matches(
+    query, train = pairs_within(predicted, in_front, current.uv, radius)
+    return select_matches(
         query, train, previous.descriptors, current.descriptors, current.uv, max_distance, ratio
     )
 
@@ -135,21 +135,39 @@ def match_lines(
 ) -> FrameMatches:
     """Match previous stereo lines to current ones around their predicted segments.
 
-    A candidate's midpoint lies within ``radius_px`` of the predicted midpoint and its
-    oriented direction (LSD orients segments by their gradient, so a match keeps its
-    orientation) within ``max_angle_change`` [rad] of the predicted one; the predicted
-    segment joins the two projected 3D endpoints of ``previous.endpoints_c``.
+    The predicted segment joins the two projected 3D endpoints of ``previous.endpoints_c``
+    (`match_predicted_segments` says how candidates are chosen).
     """
     if len(previous) == 0 or len(current) == 0:
         return FrameMatches.empty()
     predicted, usable = predict_segments(camera, T_c_p, previous.endpoints_c)
+    return match_predicted_segments(
+        predicted, usable, previous.descriptors, current, radius_px, max_angle_change, max_distance, ratio
+    )
+
+
+def match_predicted_segments(
+    predicted: np.ndarray,
+    usable: np.ndarray,
+    descriptors: np.ndarray,
+    current: StereoLines,
+    radius_px: float,
+    max_angle_change: float,
+    max_distance: int,
+    ratio: float,
+) -> FrameMatches:
+    """Match segments predicted in the current image (M, 4) to its detected lines.
+
+    A candidate's midpoint lies within ``radius_px`` of the predicted midpoint and its
+    oriented direction (LSD orients segments by their gradient, so a match keeps its
+    orientation) within ``max_angle_change`` [rad] of the predicted one; ``usable`` (M,)
+    bool selects the predictions to search for, ``descriptors`` (M, 32) are theirs.
+    """
     midpoints = segment_midpoints(current.endpoints)
-    radius = np.full(len(previous), radius_px)
-    query, train = _pairs_within(segment_midpoints(predicted), usable, midpoints, radius)
+    radius = np.full(len(predicted), radius_px)
+    query, train = pairs_within(segment_midpoints(predicted), usable, midpoints, radius)
     turn = oriented_angle_differences(
         segment_directions(predicted)[query], segment_directions(current.endpoints)[train]
     )
     query, train = query[turn <= max_angle_change], train[turn <= max_angle_change]
-    return _select_matches(
-        query, train, previous.descriptors, current.descriptors, midpoints, max_distance, ratio
-    )
+    return select_matches(query, train, descriptors, current.descriptors, midpoints, max_distance, ratio)

@@ -1,4 +1,4 @@
-"""`Tracker`: the tracking thread of PLD-SLAM without the map (a stereo point-line VO).
+"""`Tracker`: the tracking thread of PLD-SLAM.
 
 The tracker owns a reference frame's stereo features and the constant-velocity motion
 model. For each new frame it predicts the pose from the last inter-frame motion, matches
@@ -7,16 +7,20 @@ removes mismatches with the paper's two filters (`outliers`), leaves out the fea
 disagree with the motion model (`dynamic`: dynamic grid and dynamic LLG), and estimates the pose
 relative to the reference by pose-only least squares over the point reprojection and line
 vertical/horizontal errors (`pld_slam.optim.pose_only`), rejecting outliers over rounds.
+With a map (``mapping.enabled``), that pose is the first estimate: the frame is then
+tracked against the local map (`local_map`), whose pose is the frame's, and the tracker
+decides whether the frame becomes a keyframe (`pld_slam.keyframes`). The tracker reads
+the map and never changes it: what it saw goes back to local mapping in `TrackedFrame`.
 
-Reference frame. The paper tracks the previous frame and then the local map; the map
-arrives with the mapping issue. Until then we track against a reference frame a few
-frames back, renewed (the current frame becomes the reference) after
-``tracking.reference_max_age`` frames or when the inliers fall below
-``tracking.reference_min_inlier_ratio`` of those of the reference's first tracked frame.
+Reference frame. The paper tracks the previous frame and then the local map. We track a
+reference frame a few frames back, renewed (the current frame becomes the reference)
+after ``tracking.reference_max_age`` frames, when the inliers fall below
+``tracking.reference_min_inlier_ratio`` of those of the reference's first tracked frame,
+and with a map at every keyframe (`use_keyframe`), whose BA-corrected pose it takes.
 Adjacent frames are too close for a moving object to stand out: on KITTI raw 0005 a
 near van moves ~0.08 m per frame against the scene, which a frame-to-frame solve
 absorbed as ego-motion (ATE 0.37 m); over several frames its disagreement grows past the
-inlier thresholds, and the drift only accumulates at reference changes.
+inlier thresholds, and the dynamic detectors see it.
 
 Tracking failure. The paper does not say what happens when a frame cannot be tracked.
 Fewer than ``tracking.min_inliers`` inlier points + lines, or a failed solve, keeps the
@@ -28,28 +32,37 @@ defines the world (``T_w_c = I``).
 
 import dataclasses
 import enum
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
+from pld_slam.frontend.ggs import ggs_distance
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, nearest_pose
-from pld_slam.optim.line_reprojection import endpoints_away_from_border
+from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
+from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.map import Map
+from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.pose_only import (
-    LineObservations,
-    ObservationMasks,
-    PointObservations,
     PoseOnlyOptions,
     PoseOnlyResult,
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
+from pld_slam.timing import StageClock
 from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg, predict_stereo_with_depth_sigma
+from pld_slam.tracking.local_map import (
+    LocalMap,
+    LocalMapTracking,
+    ReferenceMatches,
+    gather_local_map,
+    track_local_map,
+)
 from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_segments
 from pld_slam.tracking.moving_masks import features_on_mask
+from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 
 
@@ -66,7 +79,11 @@ class TrackingStatus(enum.Enum):
 
 @dataclass(frozen=True)
 class TrackingCounts:
-    """What survived each step of tracking one frame (points, lines)."""
+    """What survived each step of tracking one frame (points, lines).
+
+    ``point_inliers`` / ``line_inliers`` count the inliers against the reference frame,
+    ``map_point_inliers`` / ``map_line_inliers`` those against the local map.
+    """
 
     point_matches: int = 0
     line_matches: int = 0
@@ -76,6 +93,8 @@ class TrackingCounts:
     dynamic_lines: int = 0
     point_inliers: int = 0
     line_inliers: int = 0
+    map_point_inliers: int = 0
+    map_line_inliers: int = 0
 
 
 @dataclass(frozen=True)
@@ -88,9 +107,14 @@ class TrackedFrame:
     T_c_p : (4, 4) motion from the previous camera to this one (identity for the first).
     status : how the pose was obtained.
     counts : matches, filter survivors, dynamic features and inliers.
-    stage_ms : wall time of each tracking stage [ms]: ``matching``, ``filters``, ``dynamic``, ``pose``.
+    stage_ms : wall time of each tracking stage [ms]: ``matching``, ``filters``, ``dynamic``,
+        ``pose``, and with a map ``local_map``.
     dynamic : the matched features of this frame and their dynamic labels (None when
         nothing was matched: the first frame, a skipped one).
+    map : what tracking the local map found (None without a map, or when not tracked against it).
+    keyframe : why the frame becomes a keyframe, or None (always None without a map).
+    point_dynamic, line_dynamic : (P,), (L,) bool, the frame's keypoints and lines labelled
+        dynamic (empty when the frame had no features).
     """
 
     T_w_c: np.ndarray
@@ -99,6 +123,10 @@ class TrackedFrame:
     counts: TrackingCounts = TrackingCounts()
     stage_ms: dict[str, float] = field(default_factory=dict)
     dynamic: DynamicLabels | None = None
+    map: LocalMapTracking | None = None
+    keyframe: KeyframeReason | None = None
+    point_dynamic: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    line_dynamic: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 @dataclass(frozen=True)
@@ -116,11 +144,16 @@ class _DynamicIndices:
 
 
 class Tracker:
-    """Stereo point-line tracking against a reference frame, with a constant-velocity motion model."""
+    """Stereo point-line tracking against a reference frame and, given a map, its local map."""
 
-    def __init__(self, camera: StereoCamera, config: Config) -> None:
+    def __init__(self, camera: StereoCamera, config: Config, world_map: Map | None = None) -> None:
         self._camera = camera
         self._config = config
+        self._map = world_map
+        self._local_map: LocalMap | None = None
+        self._reference_keyframe: KeyFrame | None = None
+        self._frames_since_keyframe = 0
+        self._keyframes = KeyframeSelector(config.keyframes)
         self._pose_options = PoseOnlyOptions(
             use_line_vertical=config.lines.vertical_error,
             use_line_horizontal=config.lines.horizontal_error,
@@ -142,15 +175,25 @@ class Tracker:
         """
         if self._reference is None:
             self._set_reference(features, np.eye(4))
-            return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST)
-        clock = _StageClock()
+            first_keyframe = KeyframeReason.FIRST if self._map is not None else None
+            return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
+                                point_dynamic=np.zeros(len(features.keypoints), dtype=bool),
+                                line_dynamic=np.zeros(len(features.lines), dtype=bool))
+        clock = StageClock()
         T_c_r_predicted = self._velocity @ inverse(self._T_w_p) @ self._T_w_r
         matched = self._match(self._reference, features, T_c_r_predicted)
         clock.lap("matching")
         kept = self._filter(self._reference, features, matched)
         clock.lap("filters")
-        points = _point_observations(self._reference, features, kept.points, self._config.points.scale_factor)
-        lines = _line_observations(self._camera, self._reference, features, kept.lines, self._config)
+        reference = self._reference
+        points = point_observations(
+            reference.points.points_c[kept.points.previous], features.points, kept.points.current,
+            self._config.points,
+        )
+        lines = line_observations(
+            self._camera, reference.lines.endpoints_c[kept.lines.previous], features.lines, kept.lines.current,
+            self._config,
+        )
         solution = optimize_pose_rejecting_outliers(
             self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
         )
@@ -161,21 +204,90 @@ class Tracker:
             labels = _labels_from_mask(features, kept, moving_mask)
         solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
+        point_dynamic, line_dynamic = _dynamic_features(features, kept, labels)
         counts = _counts(matched, kept, labels, solution)
-        tracked = solution.success and counts.point_inliers + counts.line_inliers >= self._config.tracking.min_inliers
-        T_w_c, T_c_p = self._advance(solution, tracked)
+        min_inliers = self._config.tracking.min_inliers
+        tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
+        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._T_w_p @ inverse(self._velocity)
+        map_tracking = None
+        if self._local_map is not None:
+            map_tracking = track_local_map(
+                self._camera, inverse(T_w_c), self._local_map, features, point_dynamic, line_dynamic,
+                self._config, self._pose_options, self._reference_matches(kept, solution, labels),
+            )
+            clock.lap("local_map")
+            if map_tracking.solution.success and map_tracking.tracked_landmarks >= min_inliers:
+                T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
+            counts = dataclasses.replace(
+                counts,
+                map_point_inliers=int(np.count_nonzero(map_tracking.point_ids >= 0)),
+                map_line_inliers=int(np.count_nonzero(map_tracking.line_ids >= 0)),
+            )
+        T_w_c, T_c_p = self._advance(T_w_c)
         self._update_reference(features, T_w_c, tracked, counts, kept, labels)
         status = TrackingStatus.TRACKED if tracked else TrackingStatus.LOST
-        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels)
+        keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
+        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
+                            point_dynamic, line_dynamic)
 
-    def _advance(self, solution: PoseOnlyResult, tracked: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The frame's ``T_w_c`` (solved, or the motion model's when not tracked) and ``T_c_p``.
+    def _reference_matches(
+        self, kept: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels
+    ) -> ReferenceMatches:
+        """The inlier, static matches of the reference solve, the reference side in the world frame."""
+        if not solution.success:
+            return ReferenceMatches.empty()
+        reference = self._reference
+        points = solution.inliers.points & ~labels.point_dynamic
+        lines = solution.inliers.lines & ~labels.line_dynamic
+        segments = reference.lines.endpoints_c[kept.lines.previous[lines]].reshape(-1, 3)
+        return ReferenceMatches(
+            points_w=transform_points(self._T_w_r, reference.points.points_c[kept.points.previous[points]]),
+            point_index=kept.points.current[points],
+            lines_w=transform_points(self._T_w_r, segments).reshape(-1, 2, 3),
+            line_index=kept.lines.current[lines],
+        )
+
+    @property
+    def reference_keyframe_id(self) -> int | None:
+        """The keyframe whose local map the next frame is tracked against (None before the first)."""
+        return None if self._reference_keyframe is None else self._reference_keyframe.id
+
+    def use_keyframe(self, keyframe: KeyFrame) -> None:
+        """Track the next frames against the local map of ``keyframe``, just inserted into the map.
+
+        The keyframe also becomes the reference frame, at its pose after local BA (which
+        is also the last pose of the motion model), with its dynamic labels.
+        """
+        self._reference_keyframe = keyframe
+        self._frames_since_keyframe = 0
+        self._local_map = gather_local_map(self._map, keyframe.id, self._config.mapping.tracking_keyframes)
+        self._T_w_p = keyframe.T_w_c
+        dynamic = _DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
+        self._set_reference(keyframe.features, keyframe.T_w_c, dynamic)
+
+    def _decide_keyframe(self, features: StereoFeatures, map_tracking: LocalMapTracking) -> KeyframeReason | None:
+        """Whether the tracked frame becomes a keyframe (`pld_slam.keyframes`)."""
+        keyframe = self._reference_keyframe
+        self._frames_since_keyframe += 1
+        ggs = 0.0 if features.ggs is None else ggs_distance(features.ggs, keyframe.ggs)
+        stereo = features.points
+        close = stereo.disparity > self._camera.fx / self._config.keyframes.close_depth_baselines
+        tracked = map_tracking.point_ids[: len(stereo)] >= 0
+        return self._keyframes.decide(KeyframeEvidence(
+            frames_since_keyframe=self._frames_since_keyframe,
+            ggs_distance=ggs,
+            tracked_landmarks=map_tracking.tracked_landmarks,
+            reference_landmarks=_established_landmarks(self._map, keyframe),
+            tracked_close=int(np.count_nonzero(close & tracked)),
+            untracked_close=int(np.count_nonzero(close & ~tracked)),
+        ))
+
+    def _advance(self, T_w_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's ``T_w_c`` (re-projected onto SE(3)) and the motion ``T_c_p`` from the last frame.
 
         Both become the tracker's state: the last pose and the motion model.
         """
-        T_w_c = nearest_pose(
-            self._T_w_r @ inverse(solution.T_c_w) if tracked else self._T_w_p @ inverse(self._velocity)
-        )
+        T_w_c = nearest_pose(T_w_c)
         T_c_p = nearest_pose(inverse(T_w_c) @ self._T_w_p)
         self._velocity, self._T_w_p = T_c_p, T_w_c
         return T_w_c, T_c_p
@@ -351,47 +463,38 @@ class Tracker:
         return dataclasses.replace(refined, inliers=inliers)
 
 
+def _dynamic_features(
+    current: StereoFeatures, matches: _FrameMatches, labels: DynamicLabels
+) -> tuple[np.ndarray, np.ndarray]:
+    """The current frame's keypoints (P,) and lines (L,) labelled dynamic, as bool masks over all of them.
+
+    The labels are on stereo points, which are the first keypoints (same indices).
+    """
+    points = np.zeros(len(current.keypoints), dtype=bool)
+    points[matches.points.current[labels.point_dynamic]] = True
+    lines = np.zeros(len(current.lines), dtype=bool)
+    lines[matches.lines.current[labels.line_dynamic]] = True
+    return points, lines
+
+
+def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
+    """Live landmarks of ``keyframe`` that at least two keyframes observe (`pld_slam.keyframes`);
+    all of them while the map holds one keyframe (as ORB-SLAM2 while it holds two or fewer)."""
+    min_observers = min(2, len(world_map.keyframes))
+    count = 0
+    for kind in world_map.kinds:
+        ids = getattr(keyframe, kind.IDS_FIELD)
+        ids = ids[kind.live(ids)]
+        count += int(np.count_nonzero(kind.n_observers[ids] >= min_observers))
+    return count
+
+
 def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_mask: np.ndarray) -> DynamicLabels:
     """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
     point_uv = current.points.uv[matches.points.current]
     segments = current.lines.endpoints[matches.lines.current]
     point_dynamic, line_dynamic = features_on_mask(point_uv, segments, moving_mask)
     return DynamicLabels(point_uv, point_dynamic, segments, line_dynamic)
-
-
-def _point_observations(
-    reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, scale_factor: float
-) -> PointObservations:
-    """Reference 3D points (reference camera frame) observed as current stereo pixels ``(u_l, v, u_r)``.
-
-    A point found at ORB octave ``o`` has a pixel sigma of ``scale_factor**o`` (as ORB-SLAM2).
-    """
-    now = current.points
-    stereo_px = np.column_stack([now.uv, now.u_right])[matches.current]
-    sigma = scale_factor ** now.octave[matches.current].astype(np.float64)
-    return PointObservations(reference.points.points_c[matches.previous], stereo_px, sigma)
-
-
-def _line_observations(
-    camera: StereoCamera, reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, config: Config
-) -> LineObservations:
-    """Reference 3D segments (reference camera frame) observed as current left-image segments.
-
-    The horizontal error is used only where both detected endpoints lie
-    ``tracking.border_margin_px`` inside the image (paper: a segment cut by the border has
-    no reliable endpoint).
-    """
-    endpoints_3d = reference.lines.endpoints_c[matches.previous]
-    detected = current.lines.endpoints[matches.current]
-    start_px, end_px = detected[:, :2], detected[:, 2:]
-    return LineObservations(
-        start_w=endpoints_3d[:, 0],
-        end_w=endpoints_3d[:, 1],
-        start_px=start_px,
-        end_px=end_px,
-        sigma_px=np.full(len(matches), config.tracking.line_sigma_px),
-        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
-    )
 
 
 def _counts(
@@ -407,16 +510,3 @@ def _counts(
         point_inliers=int(np.count_nonzero(solution.inliers.points)),
         line_inliers=int(np.count_nonzero(solution.inliers.lines)),
     )
-
-
-class _StageClock:
-    """Wall time between laps [ms], by stage name."""
-
-    def __init__(self) -> None:
-        self.laps: dict[str, float] = {}
-        self._last = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        now = time.perf_counter()
-        self.laps[stage] = 1e3 * (now - self._last)
-        self._last = now

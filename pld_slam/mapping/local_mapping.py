@@ -1,0 +1,276 @@
+"""Local mapping (paper, section "Local mapping"), run inline after each new keyframe.
+
+`LocalMapping.insert_keyframe` runs the steps of ORB-SLAM2's ``LocalMapping::Run``, each
+a method below:
+
+1. `_process_new_keyframe`: the landmarks the keyframe tracked become its observations;
+   their descriptors and viewing directions are refreshed; covisibility links updated.
+2. `_cull_recent_landmarks`: a landmark created in the last keyframes dies if tracking
+   finds it in fewer than ``mapping.min_found_ratio`` (25 %) of the frames that should
+   see it, or if two keyframes after its creation fewer than ``mapping.min_observers`` (3)
+   keyframes observe it; after three keyframes it is no longer recent. Landmarks matched
+   to dynamic features in at least ``mapping.dynamic_hits`` frames and at least as often
+   as to static ones die too (the paper: movers must not stay in the map).
+3. `_create_landmarks`: the paper creates landmarks "for the new common features
+   observed in the current KF and previous KF". A stereo keyframe has the depth of every
+   stereo point and line already, so, as ORB-SLAM2 does for stereo, we create a landmark
+   from each of its stereo points and lines that has none, except those labelled
+   dynamic (keypoints without a stereo match only observe existing landmarks); step 4
+   gives it the observations of the neighbours that see it too, and step 2 removes it if
+   none do.
+4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
+   keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
+   theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`) and a
+   chi-square test on the reprojection (stereo point error, or line vertical error);
+   a match to a feature without a landmark adds an observation, a match to a feature with
+   another landmark fuses the two (the one with more observers stays).
+5. Local BA (`pld_slam.mapping.local_ba`), which drops the observations it finds outliers.
+6. `_cull_keyframes`: a covisible keyframe (never the first) whose landmarks are
+   ``mapping.redundant_keyframe_ratio`` (90 %) observed by at least
+   ``mapping.redundant_observers`` (3) other keyframes is removed (ORB-SLAM2 also asks
+   that they see it at the same or a finer scale; we count observers only).
+
+Tracking tells local mapping, frame by frame, which landmarks were visible, found and
+matched to dynamic features (`record_tracking`): the counters of step 2.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pld_slam.config import Config
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import transform_points
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
+from pld_slam.mapping.local_ba import LocalBaReport, local_bundle_adjustment
+from pld_slam.mapping.map import Map
+from pld_slam.optim.line_reprojection import line_vertical_error
+from pld_slam.optim.observations import LineObservations, WhitenedRows
+from pld_slam.optim.point_reprojection import MIN_DEPTH
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF
+from pld_slam.timing import StageClock
+from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines, match_map_points
+from pld_slam.tracking.observations import point_observations
+
+_SECOND_NEIGHBOURS = 5
+"""Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
+_RECENT_KEYFRAMES = 3
+"""A landmark stays on the recent list for this many keyframes after its creation (ORB-SLAM2: 3)."""
+
+
+@dataclass(frozen=True)
+class KeyframeInsertion:
+    """What inserting one keyframe did.
+
+    Attributes
+    ----------
+    keyframe : its id.
+    created_points, created_lines : landmarks created from its stereo features.
+    fused : landmarks fused into others, and observations added, by the neighbour search.
+    culled_landmarks : recent landmarks culled (step 2), dynamic ones included.
+    culled_keyframes : ids of the keyframes removed as redundant.
+    local_ba : the local BA report (None when there was nothing to adjust).
+    stage_ms : wall time of each step [ms].
+    """
+
+    keyframe: int
+    created_points: int
+    created_lines: int
+    fused: int
+    culled_landmarks: int
+    culled_keyframes: tuple[int, ...]
+    local_ba: LocalBaReport | None
+    stage_ms: dict[str, float]
+
+
+@dataclass
+class _Recent:
+    """Ids of the landmarks created by the last keyframes, per kind (the culling of step 2)."""
+
+    points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lines: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+class LocalMapping:
+    """The local mapping stage: the only writer of the map's landmarks and keyframe poses."""
+
+    def __init__(self, world_map: Map, camera: StereoCamera, config: Config) -> None:
+        self.map = world_map
+        self._camera = camera
+        self._config = config
+        self._recent = _Recent()
+
+    def record_tracking(
+        self,
+        visible: tuple[np.ndarray, np.ndarray],
+        found: tuple[np.ndarray, np.ndarray],
+        dynamic: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        """Count, for one tracked frame, the (point ids, line ids) visible, found and matched to dynamic features."""
+        for kind, seen, matched, moving in zip(self.map.kinds, visible, found, dynamic):
+            kind.visible[seen] += 1
+            kind.found[matched] += 1
+            kind.dynamic_hits[moving] += 1
+
+    def insert_keyframe(self, keyframe: KeyFrame) -> KeyframeInsertion:
+        """Insert ``keyframe`` (``point_ids`` / ``line_ids`` from tracking); run the steps of the module docstring."""
+        clock = StageClock()
+        self._process_new_keyframe(keyframe)
+        clock.lap("process")
+        culled = self._cull_recent_landmarks(keyframe)
+        clock.lap("cull_landmarks")
+        created_points, created_lines = self._create_landmarks(keyframe)
+        clock.lap("create")
+        fused = self._search_neighbours(keyframe)
+        clock.lap("fuse")
+        local_ba = local_bundle_adjustment(self.map, keyframe, self._camera, self._config)
+        clock.lap("local_ba")
+        culled_keyframes = self._cull_keyframes(keyframe)
+        clock.lap("cull_keyframes")
+        return KeyframeInsertion(
+            keyframe.id, created_points, created_lines, fused, culled, culled_keyframes, local_ba, clock.laps
+        )
+
+    def _process_new_keyframe(self, keyframe: KeyFrame) -> None:
+        self.map.add_keyframe(keyframe)
+        for kind in self.map.kinds:
+            self._refresh(kind, getattr(keyframe, kind.IDS_FIELD))
+
+    def _cull_recent_landmarks(self, keyframe: KeyFrame) -> int:
+        """Step 2 of the module docstring; returns the landmarks removed."""
+        config = self._config.mapping
+        removed = 0
+        for kind, name in zip(self.map.kinds, ("points", "lines")):
+            recent = getattr(self._recent, name)
+            recent = recent[kind.alive[recent]]
+            age = keyframe.id - kind.first_keyframe[recent]
+            visible, found = kind.visible[recent], kind.found[recent]
+            rarely_found = (visible > 0) & (found < config.min_found_ratio * visible)
+            unconfirmed = (age >= 2) & (kind.n_observers[recent] < config.min_observers)
+            doomed = recent[rarely_found | unconfirmed]
+            moving = np.flatnonzero(
+                kind.alive & (kind.dynamic_hits >= config.dynamic_hits) & (kind.dynamic_hits >= kind.found)
+            )
+            doomed = np.union1d(doomed, moving)
+            self.map.remove_landmarks(kind, doomed)
+            removed += len(doomed)
+            keep = kind.alive[recent] & (age < _RECENT_KEYFRAMES)
+            setattr(self._recent, name, recent[keep])
+        return removed
+
+    def _create_landmarks(self, keyframe: KeyFrame) -> tuple[int, int]:
+        """Step 3: landmarks from the keyframe's stereo points and lines that have none and are not dynamic."""
+        T_w_c = keyframe.T_w_c
+        features = keyframe.features
+        stereo = np.arange(len(keyframe.point_ids)) < features.keypoints.n_stereo
+        new_points = np.flatnonzero(stereo & (keyframe.point_ids < 0) & ~keyframe.point_dynamic)
+        point_ids = self.map.create_landmarks(
+            self.map.points, keyframe, new_points, transform_points(T_w_c, features.points.points_c[new_points]),
+            features.points.descriptors[new_points],
+        )
+        new_lines = np.flatnonzero((keyframe.line_ids < 0) & ~keyframe.line_dynamic)
+        endpoints_c = features.lines.endpoints_c[new_lines].reshape(-1, 3)
+        line_ids = self.map.create_landmarks(
+            self.map.lines, keyframe, new_lines, transform_points(T_w_c, endpoints_c).reshape(-1, 2, 3),
+            features.lines.descriptors[new_lines],
+        )
+        self._refresh(self.map.points, point_ids)
+        self._refresh(self.map.lines, line_ids)
+        self._recent.points = np.concatenate([self._recent.points, point_ids])
+        self._recent.lines = np.concatenate([self._recent.lines, line_ids])
+        self.map.update_links(keyframe)
+        return len(point_ids), len(line_ids)
+
+    def _search_neighbours(self, keyframe: KeyFrame) -> int:
+        """Step 4: fuse the keyframe's landmarks with its neighbours' both ways; returns observations added or fused."""
+        targets = self._neighbour_targets(keyframe)
+        changes = 0
+        for kind in self.map.kinds:
+            own = _live_ids(kind, getattr(keyframe, kind.IDS_FIELD))
+            for target in targets:
+                changes += self._fuse(kind, target, own)
+            theirs = np.concatenate([getattr(target, kind.IDS_FIELD) for target in targets] or [np.zeros(0, int)])
+            changes += self._fuse(kind, keyframe, np.setdiff1d(_live_ids(kind, theirs), own))
+            self._refresh(kind, _live_ids(kind, getattr(keyframe, kind.IDS_FIELD)))
+        for touched in (keyframe, *targets):
+            self.map.update_links(touched)
+        return changes
+
+    def _neighbour_targets(self, keyframe: KeyFrame) -> list[KeyFrame]:
+        """The covisible keyframes searched by step 4, strongest first, without repeats."""
+        covisibility = self.map.covisibility
+        first = covisibility.neighbours(keyframe.id, limit=self._config.mapping.local_ba_window)
+        chosen = list(first)
+        for neighbour in first:
+            for second in covisibility.neighbours(neighbour, limit=_SECOND_NEIGHBOURS):
+                if second != keyframe.id and second not in chosen:
+                    chosen.append(second)
+        return [self.map.keyframes[k] for k in chosen]
+
+    def _fuse(self, kind: Landmarks, keyframe: KeyFrame, landmark_ids: np.ndarray) -> int:
+        """Project ``landmark_ids`` into ``keyframe`` and add or fuse what matches; returns the changes made."""
+        landmark_ids = landmark_ids[kind.alive[landmark_ids]]
+        if len(landmark_ids) == 0:
+            return 0
+        snapshot = LandmarkSnapshot.of(kind, landmark_ids)
+        match = match_map_points if isinstance(kind, PointLandmarks) else match_map_lines
+        features = getattr(keyframe.features, kind.FEATURES_FIELD)
+        matches = match(self._camera, keyframe.T_c_w, snapshot, features, self._config).matches
+        fits = self._reprojects(kind, keyframe, snapshot.geometry[matches.previous], matches.current)
+        dynamic = getattr(keyframe, kind.DYNAMIC_FIELD)
+        ids = getattr(keyframe, kind.IDS_FIELD)
+        changes = 0
+        for landmark, feature in zip(snapshot.ids[matches.previous[fits]].tolist(), matches.current[fits].tolist()):
+            if dynamic[feature] or not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
+                continue
+            existing = int(ids[feature])
+            if existing < 0 or not kind.alive[existing]:
+                self.map.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
+            else:
+                keep, drop = sorted((existing, landmark), key=lambda i: (-kind.n_observers[i], i))
+                self.map.replace_landmark(kind, drop, keep)
+            changes += 1
+        return changes
+
+    def _reprojects(
+        self, kind: Landmarks, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray
+    ) -> np.ndarray:
+        """Whether each landmark (K, ...) reprojects onto its matched feature (K,) within the chi-square bound."""
+        if isinstance(kind, PointLandmarks):
+            observed = point_observations(geometry, keyframe.features.keypoints, features, self._config.points)
+            rows = WhitenedRows.of(observed, LineObservations.empty(), LineObservations.empty())
+            point_chi2, _, _ = rows.chi2(rows.evaluate(self._camera, keyframe.T_c_w, keyframe.T_c_w, MIN_DEPTH))
+            return rows.point_inliers(point_chi2, CHI2_95_3DOF, CHI2_95_2DOF)
+        detected = keyframe.features.lines.endpoints[features]
+        error = line_vertical_error(self._camera, keyframe.T_c_w, geometry[:, 0], geometry[:, 1],
+                                    detected[:, :2], detected[:, 2:])
+        chi2 = np.sum((error.residual / self._config.tracking.line_sigma_px) ** 2, axis=1)
+        return error.valid & (chi2 <= CHI2_95_2DOF)
+
+    def _cull_keyframes(self, keyframe: KeyFrame) -> tuple[int, ...]:
+        """Step 6: remove covisible keyframes whose landmarks other keyframes see enough."""
+        config = self._config.mapping
+        culled = []
+        for candidate_id in self.map.covisibility.neighbours(keyframe.id):
+            if candidate_id == self.map.covisibility.root:
+                continue
+            candidate = self.map.keyframes[candidate_id]
+            observed = redundant = 0
+            for kind in self.map.kinds:
+                ids = _live_ids(kind, getattr(candidate, kind.IDS_FIELD))
+                observed += len(ids)
+                redundant += int(np.count_nonzero(kind.n_observers[ids] - 1 >= config.redundant_observers))
+            if observed and redundant >= config.redundant_keyframe_ratio * observed:
+                self.map.remove_keyframe(candidate)
+                culled.append(candidate_id)
+        return tuple(culled)
+
+    def _refresh(self, kind: Landmarks, ids: np.ndarray) -> None:
+        self.map.refresh_landmarks(kind, _live_ids(kind, ids), self._config.points.scale_factor)
+
+
+def _live_ids(kind: Landmarks, ids: np.ndarray) -> np.ndarray:
+    """The distinct live landmark ids among ``ids`` (which may hold -1), ascending."""
+    ids = np.unique(ids[ids >= 0])
+    return ids[kind.alive[ids]]

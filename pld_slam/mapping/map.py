@@ -1,0 +1,251 @@
+"""`Map`: keyframes, map points and lines, their observations, and the covisibility graph.
+
+Local mapping (`pld_slam.mapping.local_mapping`) is the only writer; tracking reads it
+through `local_map` and `pld_slam.tracking.local_map`. Every change goes through a few
+methods that keep the two copies of an observation in step (a keyframe's landmark id per
+feature, a landmark's ``{keyframe: feature}``, see `pld_slam.mapping.landmarks`), the
+observer counts, and the covisibility links.
+
+A landmark left without observers dies (``alive`` False). A culled keyframe leaves its
+pose relative to its spanning-tree parent behind (`culled_keyframe_pose`), so that frames
+whose poses were stored relative to it still follow every later correction of the map.
+"""
+
+from collections import Counter
+
+import numpy as np
+
+from pld_slam.frontend.descriptors import hamming_distances
+from pld_slam.geometry.se3 import inverse
+from pld_slam.mapping.covisibility import CovisibilityGraph
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.landmarks import Landmarks, LineLandmarks, PointLandmarks
+
+
+class Map:
+    """The SLAM map (module docstring)."""
+
+    def __init__(self, covisibility_min_shared: int) -> None:
+        self.keyframes: dict[int, KeyFrame] = {}
+        """Live keyframes by id, in insertion order."""
+        self.points = PointLandmarks()
+        self.lines = LineLandmarks()
+        self.covisibility = CovisibilityGraph(covisibility_min_shared)
+        self._next_keyframe_id = 0
+        self._culled: dict[int, tuple[int, np.ndarray]] = {}
+        """Culled keyframe id -> (its parent's id, ``T_c_p`` from the parent camera to it)."""
+
+    @property
+    def kinds(self) -> tuple[Landmarks, Landmarks]:
+        """The two landmark kinds, points then lines."""
+        return self.points, self.lines
+
+    def next_keyframe_id(self) -> int:
+        """The id the next keyframe gets (ids increase in insertion order)."""
+        return self._next_keyframe_id
+
+    def add_keyframe(self, keyframe: KeyFrame) -> None:
+        """Insert a keyframe; the live landmarks its ``point_ids`` / ``line_ids`` name become its observations.
+
+        Ids naming a dead landmark, or a landmark another feature of the keyframe already
+        observes, are cleared to -1. Links are updated.
+        """
+        if keyframe.id != self._next_keyframe_id:
+            raise ValueError(f"keyframe id {keyframe.id}, expected {self._next_keyframe_id}")
+        self._next_keyframe_id += 1
+        self.keyframes[keyframe.id] = keyframe
+        self.covisibility.add_keyframe(keyframe.id)
+        for kind in self.kinds:
+            ids = getattr(keyframe, kind.IDS_FIELD)
+            features = np.flatnonzero(ids >= 0)
+            landmarks = ids[features]
+            ids[:] = -1
+            self.add_observations(kind, keyframe, features, landmarks)
+        self.update_links(keyframe)
+
+    def add_observations(
+        self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, landmarks: np.ndarray
+    ) -> None:
+        """``keyframe``'s features (K,) observe ``landmarks`` (K,) of ``kind``.
+
+        Skipped: dead landmarks, features that already observe a landmark, and landmarks
+        the keyframe already observes through another feature (the first one kept).
+        """
+        ids = getattr(keyframe, kind.IDS_FIELD)
+        keep = kind.live(landmarks) & (ids[features] < 0)
+        for feature, landmark in zip(features[keep].tolist(), landmarks[keep].tolist()):
+            observers = kind.observers[landmark]
+            if keyframe.id in observers:
+                continue
+            observers[keyframe.id] = feature
+            ids[feature] = landmark
+            kind.n_observers[landmark] += 1
+
+    def erase_observations(self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray) -> None:
+        """``keyframe``'s features (K,) no longer observe their landmarks; a landmark left unobserved dies."""
+        ids = getattr(keyframe, kind.IDS_FIELD)
+        for feature in features.tolist():
+            landmark = int(ids[feature])
+            if landmark < 0:
+                continue
+            ids[feature] = -1
+            del kind.observers[landmark][keyframe.id]
+            kind.n_observers[landmark] -= 1
+            if kind.n_observers[landmark] == 0:
+                kind.alive[landmark] = False
+
+    def create_landmarks(
+        self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, geometry_w: np.ndarray, descriptors: np.ndarray
+    ) -> np.ndarray:
+        """New landmarks (K,) at ``geometry_w`` observed by ``keyframe``'s features (K,); returns their ids."""
+        ids = kind.add(geometry_w, descriptors, keyframe.id)
+        self.add_observations(kind, keyframe, features, ids)
+        return ids
+
+    def remove_landmarks(self, kind: Landmarks, landmarks: np.ndarray) -> None:
+        """Remove landmarks (K,) and every observation of them."""
+        for landmark in landmarks.tolist():
+            for keyframe, feature in kind.observers[landmark].items():
+                getattr(self.keyframes[keyframe], kind.IDS_FIELD)[feature] = -1
+            kind.observers[landmark] = {}
+            kind.n_observers[landmark] = 0
+            kind.alive[landmark] = False
+
+    def replace_landmark(self, kind: Landmarks, old: int, new: int) -> None:
+        """Fuse landmark ``old`` into ``new``: its observations move to ``new``, then it dies.
+
+        A keyframe observing both keeps its observation of ``new``. Found and visible
+        counts add up, as in ORB-SLAM2's ``Replace``.
+        """
+        if old == new:
+            return
+        for keyframe_id, feature in list(kind.observers[old].items()):
+            keyframe = self.keyframes[keyframe_id]
+            getattr(keyframe, kind.IDS_FIELD)[feature] = -1
+            if keyframe_id not in kind.observers[new]:
+                kind.observers[new][keyframe_id] = feature
+                getattr(keyframe, kind.IDS_FIELD)[feature] = new
+                kind.n_observers[new] += 1
+        kind.found[new] += kind.found[old]
+        kind.visible[new] += kind.visible[old]
+        kind.dynamic_hits[new] += kind.dynamic_hits[old]
+        kind.observers[old] = {}
+        kind.n_observers[old] = 0
+        kind.alive[old] = False
+
+    def update_links(self, keyframe: KeyFrame) -> None:
+        """Recount the landmarks ``keyframe`` shares with every other keyframe (covisibility)."""
+        shared: Counter[int] = Counter()
+        for kind in self.kinds:
+            ids = getattr(keyframe, kind.IDS_FIELD)
+            for landmark in ids[ids >= 0].tolist():
+                shared.update(kind.observers[landmark].keys())
+        shared.pop(keyframe.id, None)
+        self.covisibility.set_links(keyframe.id, dict(shared))
+
+    def remove_keyframe(self, keyframe: KeyFrame) -> None:
+        """Cull a keyframe: its observations go, its children re-attach, its pose stays relative to its parent.
+
+        The root (first keyframe) is never removed.
+        """
+        parent = self.covisibility.parent[keyframe.id]
+        if parent is None:
+            raise ValueError(f"keyframe {keyframe.id} has no parent: the root cannot be removed")
+        self._culled[keyframe.id] = (parent, keyframe.T_c_w @ self.keyframes[parent].T_w_c)
+        for kind in self.kinds:
+            ids = getattr(keyframe, kind.IDS_FIELD)
+            self.erase_observations(kind, keyframe, np.flatnonzero(ids >= 0))
+        self.covisibility.remove_keyframe(keyframe.id)
+        del self.keyframes[keyframe.id]
+
+    def keyframe_T_w_c(self, keyframe_id: int) -> np.ndarray:
+        """(4, 4) pose of a keyframe, live or culled (a culled one follows its parent chain)."""
+        chain = np.eye(4)
+        while keyframe_id not in self.keyframes:
+            keyframe_id, T_c_p = self._culled[keyframe_id]
+            chain = T_c_p @ chain
+        return self.keyframes[keyframe_id].T_w_c @ inverse(chain)
+
+    def observation_table(self, kind: Landmarks, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every observation of ``landmarks`` (K,): landmark row in ``landmarks``, keyframe id, feature index.
+
+        Three (M,) int64 arrays, grouped by landmark in the order of ``landmarks``, keyframes
+        in insertion order within a group.
+        """
+        rows, keyframes, features = [], [], []
+        for row, landmark in enumerate(landmarks.tolist()):
+            for keyframe, feature in kind.observers[landmark].items():
+                rows.append(row)
+                keyframes.append(keyframe)
+                features.append(feature)
+        return (np.array(rows, dtype=np.int64), np.array(keyframes, dtype=np.int64),
+                np.array(features, dtype=np.int64))
+
+    def refresh_landmarks(self, kind: Landmarks, landmarks: np.ndarray, scale_factor: float) -> None:
+        """Recompute the summaries of landmarks (K,) from their observations (ORB-SLAM2's
+        ``ComputeDistinctiveDescriptors`` and ``UpdateNormalAndDepth``).
+
+        ``normal``: the mean unit direction from the observing cameras; ``descriptor``: the
+        representative one (`representative_descriptors`); for points, ``max_distance``:
+        the distance from the first-listed observer times ``scale_factor**octave`` of its
+        observation (`pld_slam.mapping.landmarks.PointLandmarks`).
+        """
+        landmarks = landmarks[kind.n_observers[landmarks] > 0]
+        if len(landmarks) == 0:
+            return
+        rows, keyframes, features = self.observation_table(kind, landmarks)
+        centres = np.array([self.keyframes[k].centre for k in keyframes.tolist()]).reshape(-1, 3)
+        rays = kind.centres(landmarks)[rows] - centres
+        distance = np.linalg.norm(rays, axis=1)
+        normal = np.zeros((len(landmarks), 3))
+        np.add.at(normal, rows, rays / np.maximum(distance, 1e-12)[:, None])
+        kind.normal[landmarks] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        descriptors = self.feature_attribute(kind, "descriptors", keyframes, features)
+        kind.descriptor[landmarks] = representative_descriptors(rows, descriptors, len(landmarks))
+        if isinstance(kind, PointLandmarks):
+            first = np.flatnonzero(np.diff(rows, prepend=-1))
+            octave = self.feature_attribute(kind, "octave", keyframes[first], features[first])
+            kind.max_distance[landmarks] = distance[first] * scale_factor ** octave.astype(np.float64)
+
+    def feature_attribute(
+        self, kind: Landmarks, attribute: str, keyframes: np.ndarray, features: np.ndarray
+    ) -> np.ndarray:
+        """An attribute (``descriptors``, ``octave``, ...) of features (M,) of keyframes (M,) of ``kind``: (M, ...)."""
+        def of(keyframe_id: int) -> np.ndarray:
+            return getattr(getattr(self.keyframes[keyframe_id].features, kind.FEATURES_FIELD), attribute)
+
+        sample = of(int(keyframes[0]) if len(keyframes) else next(iter(self.keyframes)))
+        values = np.empty((len(features), *sample.shape[1:]), dtype=sample.dtype)
+        for keyframe_id in np.unique(keyframes).tolist():
+            at = keyframes == keyframe_id
+            values[at] = of(keyframe_id)[features[at]]
+        return values
+
+
+def representative_descriptors(rows: np.ndarray, descriptors: np.ndarray, n_groups: int) -> np.ndarray:
+    """Per group, the descriptor whose median Hamming distance to the group's others is smallest.
+
+    Parameters
+    ----------
+    rows : (M,) int64 group of each descriptor, grouped (equal rows contiguous), 0..n_groups-1.
+    descriptors : (M, 32) uint8.
+    n_groups : number of groups; each must hold at least one descriptor.
+
+    Returns
+    -------
+    (n_groups, 32) uint8. ORB-SLAM2's ``ComputeDistinctiveDescriptors``: the lower median,
+    ties to the first listed.
+    """
+    sizes = np.bincount(rows, minlength=n_groups)
+    starts = np.cumsum(sizes) - sizes
+    per_member = sizes[rows]
+    member = np.repeat(np.arange(len(rows)), per_member)
+    offset = np.arange(len(member)) - np.repeat(np.cumsum(per_member) - per_member, per_member)
+    other = starts[rows[member]] + offset
+    distance = hamming_distances(descriptors[member], descriptors[other])
+    order = np.lexsort((distance, member))
+    block_start = np.cumsum(per_member) - per_member
+    median = distance[order][block_start + (per_member - 1) // 2]
+    best = np.lexsort((np.arange(len(rows)), median, rows))
+    first_of_group = best[starts[np.arange(n_groups)]]
+    return descriptors[first_of_group]

@@ -1,0 +1,459 @@
+"""Sparse bundle adjustment: keyframe poses, map points and map lines optimised together.
+
+The cost is the pose-only cost (`pose_only`) summed over keyframes, with the landmarks
+free too: the whitened rows of `observations` (stereo point reprojection, line vertical
+and horizontal errors, the horizontal one only where the detected endpoints are away
+from the border) under the Huber loss of `robust`. Local BA (`pld_slam.mapping.local_ba`)
+and the final global BA build a `BundleProblem` and call `bundle_adjust`.
+
+Unknowns. ``x`` holds a twist (6) per free pose, ``T_c_w = se3_exp(x_k) @ T_c_w_init``
+as in `pose_only`, then a shift (3) per point and per line endpoint (a line is its two
+endpoints, `pld_slam.mapping.landmarks`). Poses marked ``fixed`` are not unknowns; the
+caller fixes at least one to remove the gauge freedom.
+
+Preconditioning. A BA Jacobian is ill-conditioned block by block (a landmark's depth against
+its lateral position, a pose's translation against its rotation), which column scaling
+cannot fix, and LSMR then needs ~70 iterations per step: on KITTI, local BA spent 75 % of
+its time there. The solver's unknowns are therefore whitened block by block
+(`_block_whitening`), the block-Jacobi preconditioner applied as a change of variables.
+
+Jacobian. Every row depends on one pose and one world point (a map point, or the line
+endpoint the row measures): 6 + 3 non-zeros, or 3 when its pose is fixed. The column
+indices of each row are the same at every evaluation, so the CSR structure is built once
+per solve and only its values are filled at each evaluation, from the residuals'
+analytic Jacobians (times the SE(3) left Jacobian for the twists): no dense Jacobian and
+no finite differences. `scipy.optimize.least_squares` solves it with ``method="trf"``
+and ``tr_solver="lsmr"`` (the one combination that takes a sparse Jacobian) and
+``x_scale="jac"``: columns differ by orders of magnitude (a pose twist moves every
+observation of a keyframe, a point shift three rows), and scaling by column norms is
+what makes LSMR converge in few iterations.
+
+Rounds, as ORB-SLAM2's ``LocalBundleAdjustment``: a robust solve; the observations that
+fail their chi-square test at its solution (or whose landmark lies behind the camera)
+are left out of a second, plain solve; every observation is then tested at the result,
+and `BundleResult.inliers` tells the caller which to drop from the map.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
+
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import se3_exp, se3_left_jacobian
+from pld_slam.optim.observations import (
+    LineObservations,
+    ObservationMasks,
+    PointObservations,
+    RowEvaluation,
+    WhitenedRows,
+)
+from pld_slam.optim.point_reprojection import MIN_DEPTH
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, HUBER_SCALE, huber_without_curvature
+
+_STOPPING_TOLERANCES = dict(ftol=1e-4, xtol=1e-8, gtol=1e-8)
+"""Stop when a step lowers the cost by less than 0.01 %: BA refines a map that tracking
+already put close to its optimum, and each evaluation of a local window costs milliseconds."""
+
+
+@dataclass(frozen=True)
+class BundlePointObservations:
+    """M stereo observations of map points by keyframes.
+
+    Attributes
+    ----------
+    keyframe : (M,) int64 index of the observing pose in `BundleProblem.T_c_w`.
+    point : (M,) int64 index of the observed point in `BundleProblem.points_w`.
+    stereo_px : (M, 3) observed ``(u_left, v, u_right)`` [px], ``u_right`` NaN without a stereo match.
+    sigma_px : (M,) or (M, 3) sigmas of each observation, as `pld_slam.optim.observations.PointObservations`.
+    """
+
+    keyframe: np.ndarray
+    point: np.ndarray
+    stereo_px: np.ndarray
+    sigma_px: np.ndarray
+
+
+@dataclass(frozen=True)
+class BundleLineObservations:
+    """N observations of map lines by keyframes, as detected left-image segments.
+
+    Attributes
+    ----------
+    keyframe : (N,) int64 index of the observing pose.
+    line : (N,) int64 index of the observed line in `BundleProblem.lines_w`.
+    start_px, end_px : (N, 2) detected endpoints [px], ``start_px`` matched to the line's start.
+    sigma_px : (N,) pixel sigma of each observation.
+    horizontal_eligible : (N,) bool, the horizontal term may be used.
+    """
+
+    keyframe: np.ndarray
+    line: np.ndarray
+    start_px: np.ndarray
+    end_px: np.ndarray
+    sigma_px: np.ndarray
+    horizontal_eligible: np.ndarray
+
+
+@dataclass(frozen=True)
+class BundleProblem:
+    """A bundle adjustment problem.
+
+    Attributes
+    ----------
+    T_c_w : (K, 4, 4) initial world-to-camera poses.
+    fixed : (K,) bool, poses held fixed.
+    points_w : (P, 3) initial map points [m].
+    lines_w : (L, 2, 3) initial map lines, start and end [m].
+    point_observations, line_observations : the observations.
+    """
+
+    T_c_w: np.ndarray
+    fixed: np.ndarray
+    points_w: np.ndarray
+    lines_w: np.ndarray
+    point_observations: BundlePointObservations
+    line_observations: BundleLineObservations
+
+
+@dataclass(frozen=True)
+class BundleOptions:
+    """Settings of `bundle_adjust`.
+
+    Attributes
+    ----------
+    use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
+    huber_scale : Huber ``f_scale`` [whitened units] of the robust round.
+    chi2_point, chi2_monocular_point, chi2_line : chi-square bounds of a stereo point (3 dof), a
+        point seen in the left image only (2 dof) and a line term (2 dof).
+    max_nfev : residual evaluations allowed per round.
+    min_depth : smallest landmark depth [m] that counts as in front of a camera.
+    """
+
+    use_line_vertical: bool = True
+    use_line_horizontal: bool = True
+    huber_scale: float = HUBER_SCALE
+    chi2_point: float = CHI2_95_3DOF
+    chi2_monocular_point: float = CHI2_95_2DOF
+    chi2_line: float = CHI2_95_2DOF
+    max_nfev: int = 10
+    min_depth: float = MIN_DEPTH
+
+
+@dataclass(frozen=True)
+class BundleResult:
+    """The outcome of `bundle_adjust`.
+
+    Attributes
+    ----------
+    T_c_w : (K, 4, 4) optimised poses (fixed ones unchanged).
+    points_w : (P, 3) and lines_w : (L, 2, 3) optimised landmarks.
+    inliers : per observation, the chi-square tests at the result (``lines`` the vertical
+        term and the line as a whole, ``line_horizontal`` its horizontal term).
+    initial_cost, final_cost : half the sum of squared whitened residuals of the
+        observations of the final inlier set, before and after [whitened units].
+    nfev : residual evaluations of both rounds.
+    """
+
+    T_c_w: np.ndarray
+    points_w: np.ndarray
+    lines_w: np.ndarray
+    inliers: ObservationMasks
+    initial_cost: float
+    final_cost: float
+    nfev: int
+
+
+def bundle_adjust(
+    camera: StereoCamera, problem: BundleProblem, options: BundleOptions = BundleOptions()
+) -> BundleResult:
+    """Optimise poses, points and lines of ``problem``: a robust round, then a plain one without outliers.
+
+    Returns the optimised geometry and the observations that pass their chi-square test
+    at it (module docstring).
+    """
+    every_row = _BundleRows.of(problem, options)
+    state = _State.initial(problem)
+    at_start = every_row.evaluate(camera, state, options.min_depth)
+    include = every_row.usable(at_start)
+    nfev = 0
+    for robust in (True, False):
+        state, solve_nfev = _solve(camera, every_row, state, include, robust, options)
+        nfev += solve_nfev
+        at_state = every_row.evaluate(camera, state, options.min_depth)
+        include = every_row.inliers(at_state, options) if robust else include
+    inliers = every_row.inliers(at_state, options)
+    used = every_row.row_mask(inliers)
+    return BundleResult(
+        T_c_w=state.T_c_w,
+        points_w=state.points_w,
+        lines_w=state.lines_w,
+        inliers=inliers,
+        initial_cost=_half_squared_sum(at_start.residual[used]),
+        final_cost=_half_squared_sum(at_state.residual[used]),
+        nfev=nfev,
+    )
+
+
+@dataclass(frozen=True)
+class _State:
+    """Poses (K, 4, 4), points (P, 3) and lines (L, 2, 3) at one point of the solve."""
+
+    T_c_w: np.ndarray
+    points_w: np.ndarray
+    lines_w: np.ndarray
+
+    @classmethod
+    def initial(cls, problem: BundleProblem) -> "_State":
+        return cls(problem.T_c_w.copy(), problem.points_w.copy(), problem.lines_w.copy())
+
+    @property
+    def world_points(self) -> np.ndarray:
+        """Every point of the state (P + 2 L, 3): the points, then each line's start and end."""
+        return np.concatenate([self.points_w, self.lines_w.reshape(-1, 3)])
+
+
+@dataclass(frozen=True)
+class _BundleRows:
+    """Every residual row of a problem, and what each row depends on.
+
+    Rows are those of `WhitenedRows` (3 per point observation, 2 per vertical term, 2 per
+    horizontal term). ``row_pose`` (R,) is the pose of each row; ``row_world_point`` (R,)
+    the index of the world point it measures in `_State.world_points`; ``fixed_pose`` (K,)
+    the poses held fixed.
+    """
+
+    rows: WhitenedRows
+    row_pose: np.ndarray
+    row_world_point: np.ndarray
+    fixed_pose: np.ndarray
+    horizontal_eligible: np.ndarray
+    options: BundleOptions
+
+    @classmethod
+    def of(cls, problem: BundleProblem, options: BundleOptions) -> "_BundleRows":
+        points, lines = problem.point_observations, problem.line_observations
+        n_points = len(problem.points_w)
+        line_observations = LineObservations(
+            start_w=problem.lines_w[lines.line, 0],
+            end_w=problem.lines_w[lines.line, 1],
+            start_px=lines.start_px,
+            end_px=lines.end_px,
+            sigma_px=lines.sigma_px,
+            horizontal_eligible=lines.horizontal_eligible,
+        )
+        rows = WhitenedRows.of(
+            PointObservations(problem.points_w[points.point], points.stereo_px, points.sigma_px),
+            line_observations,
+            line_observations,
+        )
+        line_endpoint = n_points + 2 * np.repeat(lines.line, 2) + np.tile([0, 1], len(lines.line))
+        return cls(
+            rows=rows,
+            row_pose=np.concatenate([np.repeat(points.keyframe, 3), np.tile(np.repeat(lines.keyframe, 2), 2)]),
+            row_world_point=np.concatenate([np.repeat(points.point, 3), np.tile(line_endpoint, 2)]),
+            fixed_pose=np.asarray(problem.fixed, dtype=bool),
+            horizontal_eligible=lines.horizontal_eligible,
+            options=options,
+        )
+
+    def row_mask(self, masks: ObservationMasks) -> np.ndarray:
+        """(R,) bool, the rows of the observations and line terms that ``masks`` selects."""
+        return self.rows.row_mask(masks)
+
+    def evaluate(self, camera: StereoCamera, state: _State, min_depth: float) -> RowEvaluation:
+        """Every row at ``state``."""
+        return self.select_evaluate(camera, state, np.ones(len(self.row_pose), dtype=bool), min_depth)
+
+    def select_evaluate(
+        self, camera: StereoCamera, state: _State, row_mask: np.ndarray, min_depth: float
+    ) -> RowEvaluation:
+        """The rows where ``row_mask`` (R,) is True, at ``state``."""
+        rows = self.rows.select(row_mask)
+        world_point = self.row_world_point[row_mask]
+        pose = self.row_pose[row_mask]
+        n_point_rows = 3 * len(rows.points_w)
+        world_points = state.world_points
+        rows = rows.with_landmarks(world_points[world_point[:n_point_rows:3]], world_points[world_point[n_point_rows:]])
+        T_c_w = state.T_c_w[pose]
+        return rows.evaluate(camera, T_c_w[:n_point_rows:3], T_c_w[n_point_rows:], min_depth)
+
+    def usable(self, evaluation: RowEvaluation) -> ObservationMasks:
+        """Every observation whose landmark projects, with the line terms the options switch on."""
+        point_chi2, vertical_chi2, _ = self.rows.chi2(evaluation)
+        in_front = np.isfinite(vertical_chi2)
+        return ObservationMasks(
+            points=np.isfinite(point_chi2),
+            lines=in_front & self.options.use_line_vertical,
+            line_horizontal=in_front & self.horizontal_eligible & self.options.use_line_horizontal,
+        )
+
+    def inliers(self, evaluation: RowEvaluation, options: BundleOptions) -> ObservationMasks:
+        """The observations passing their chi-square tests (``lines``: the vertical term, or
+        in front of the camera when that term is off; ``line_horizontal``: only with its line)."""
+        point_chi2, vertical_chi2, horizontal_chi2 = self.rows.chi2(evaluation)
+        lines = vertical_chi2 <= options.chi2_line if options.use_line_vertical else np.isfinite(vertical_chi2)
+        return ObservationMasks(
+            points=self.rows.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
+            lines=lines,
+            line_horizontal=lines & self.horizontal_eligible & options.use_line_horizontal
+            & (horizontal_chi2 <= options.chi2_line),
+        )
+
+
+def _solve(
+    camera: StereoCamera,
+    every_row: _BundleRows,
+    state: _State,
+    include: ObservationMasks,
+    robust: bool,
+    options: BundleOptions,
+) -> tuple[_State, int]:
+    """One `least_squares` solve over the included rows from ``state``; the new state and its nfev."""
+    used = every_row.row_mask(_used_terms(include, options))
+    problem = _SparseProblem(camera, every_row, state, used)
+    if problem.n_rows == 0:
+        return state, 0
+    loss = dict(loss=huber_without_curvature, f_scale=options.huber_scale) if robust else {}
+    solution = least_squares(
+        problem.residuals,
+        np.zeros(problem.n_unknowns),
+        jac=problem.jacobian,
+        method="trf",
+        tr_solver="lsmr",
+        x_scale="jac",
+        max_nfev=options.max_nfev,
+        **_STOPPING_TOLERANCES,
+        **loss,
+    )
+    return problem.state(solution.x), solution.nfev
+
+
+def _used_terms(include: ObservationMasks, options: BundleOptions) -> ObservationMasks:
+    """The vertical and horizontal terms a solve uses: switched on, and the horizontal one only with its line."""
+    return ObservationMasks(
+        points=include.points,
+        lines=include.lines & options.use_line_vertical,
+        line_horizontal=include.lines & include.line_horizontal & options.use_line_horizontal,
+    )
+
+
+class _SparseProblem:
+    """The included rows of a problem as a function of block-whitened unknowns ``y``, with their sparse Jacobian.
+
+    The unknowns of the module docstring are ``x``; the solver sees ``y``, with ``x_b = W_b y_b``
+    for each block ``b`` (a free pose's twist, a world point's shift) and ``W_b`` fixed for the
+    solve (`_block_whitening`). The Jacobian w.r.t. ``y`` is the one w.r.t. ``x`` with each
+    block's columns multiplied by its ``W_b``: still analytic and as sparse.
+    """
+
+    def __init__(self, camera: StereoCamera, every_row: _BundleRows, start: _State, row_mask: np.ndarray) -> None:
+        self._camera = camera
+        self._every_row = every_row
+        self._start = start
+        self._row_mask = row_mask
+        self._min_depth = every_row.options.min_depth
+        self._free = np.flatnonzero(~every_row.fixed_pose)
+        pose_column = np.full(len(start.T_c_w), -1)
+        pose_column[self._free] = 6 * np.arange(len(self._free))
+        self._n_pose_unknowns = 6 * len(self._free)
+        self.n_unknowns = self._n_pose_unknowns + 3 * len(start.world_points)
+        row_pose = every_row.row_pose[row_mask]
+        self.n_rows = int(row_mask.sum())
+        self._row_pose = row_pose
+        self._row_world_point = every_row.row_world_point[row_mask]
+        self._row_free = pose_column[row_pose] >= 0
+        landmark_columns = self._n_pose_unknowns + 3 * self._row_world_point[:, None] + np.arange(3)
+        pose_columns = pose_column[row_pose][:, None] + np.arange(6)
+        columns = np.concatenate([pose_columns, landmark_columns], axis=1)
+        self._entries = np.concatenate(
+            [np.repeat(self._row_free[:, None], 6, axis=1), np.ones((self.n_rows, 3), dtype=bool)], axis=1
+        )
+        self._indices = columns[self._entries]
+        self._indptr = np.concatenate([[0], np.cumsum(self._entries.sum(axis=1))])
+        self._cached_y: np.ndarray | None = None
+        self._cached: RowEvaluation | None = None
+        at_start = self._evaluate_x(np.zeros(self.n_unknowns))
+        jac_pose = np.where(self._row_free[:, None], at_start.jac_pose, 0.0)
+        self._pose_whitening = _block_whitening(jac_pose, row_pose, len(start.T_c_w))
+        self._point_whitening = _block_whitening(at_start.jac_landmark, self._row_world_point, len(start.world_points))
+        self._cached_y, self._cached = np.zeros(self.n_unknowns), at_start
+
+    def state(self, y: np.ndarray) -> _State:
+        """Poses and landmarks at ``y``."""
+        return self._state_at(self._x_of(y))
+
+    def residuals(self, y: np.ndarray) -> np.ndarray:
+        """Whitened residuals (R,) at ``y``."""
+        return self._evaluate(y).residual
+
+    def jacobian(self, y: np.ndarray) -> csr_matrix:
+        """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y``."""
+        evaluation = self._evaluate(y)
+        twists = self._x_of(y)[: self._n_pose_unknowns].reshape(-1, 6)
+        per_pose = self._pose_whitening.copy()
+        for pose, twist in zip(self._free.tolist(), twists):
+            per_pose[pose] = se3_left_jacobian(twist) @ self._pose_whitening[pose]
+        jac_pose = np.einsum("ri,rij->rj", evaluation.jac_pose, per_pose[self._row_pose])
+        jac_landmark = np.einsum("ri,rij->rj", evaluation.jac_landmark, self._point_whitening[self._row_world_point])
+        values = np.concatenate([jac_pose, jac_landmark], axis=1)[self._entries]
+        return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
+
+    def _x_of(self, y: np.ndarray) -> np.ndarray:
+        """The unknowns ``x`` of the module docstring at ``y``."""
+        twists = np.einsum("kij,kj->ki", self._pose_whitening[self._free], y[: self._n_pose_unknowns].reshape(-1, 6))
+        shifts = np.einsum("wij,wj->wi", self._point_whitening, y[self._n_pose_unknowns :].reshape(-1, 3))
+        return np.concatenate([twists.ravel(), shifts.ravel()])
+
+    def _state_at(self, x: np.ndarray) -> _State:
+        T_c_w = self._start.T_c_w.copy()
+        twists = x[: self._n_pose_unknowns].reshape(-1, 6)
+        for pose, twist in zip(self._free.tolist(), twists):
+            T_c_w[pose] = se3_exp(twist) @ self._start.T_c_w[pose]
+        shifts = x[self._n_pose_unknowns :].reshape(-1, 3)
+        n_points = len(self._start.points_w)
+        points_w = self._start.points_w + shifts[:n_points]
+        lines_w = self._start.lines_w + shifts[n_points:].reshape(-1, 2, 3)
+        return _State(T_c_w, points_w, lines_w)
+
+    def _evaluate_x(self, x: np.ndarray) -> RowEvaluation:
+        return self._every_row.select_evaluate(self._camera, self._state_at(x), self._row_mask, self._min_depth)
+
+    def _evaluate(self, y: np.ndarray) -> RowEvaluation:
+        """The included rows at ``y``, computed once per ``y``."""
+        if self._cached_y is None or not np.array_equal(y, self._cached_y):
+            self._cached = self._evaluate_x(self._x_of(y))
+            self._cached_y = np.array(y, dtype=np.float64)
+        return self._cached
+
+
+_WHITENING_FLOOR = 1e-8
+"""Eigenvalues of a block's Gram matrix below this share of its largest are raised to it, so
+that a direction the rows do not see (a line endpoint sliding along its line) keeps a
+finite scale."""
+
+
+def _block_whitening(jac: np.ndarray, block: np.ndarray, n_blocks: int) -> np.ndarray:
+    """``(J_b^T J_b)^(-1/2)`` (n_blocks, k, k) of the rows (R, k) of each block (R,); identity for a block
+    without rows.
+
+    Multiplying a block's columns by it makes them orthonormal at the start of the solve:
+    the block-Jacobi preconditioner of LSMR, applied as a change of variables because
+    `least_squares` takes no preconditioner. It leaves the optimum where it is.
+    """
+    k = jac.shape[1]
+    gram = np.zeros((n_blocks, k, k))
+    np.add.at(gram, block, np.einsum("ri,rj->rij", jac, jac))
+    eigenvalues, vectors = np.linalg.eigh(gram)
+    largest = eigenvalues[:, -1:]
+    seen = largest[:, 0] > 0.0
+    floor = np.maximum(eigenvalues, _WHITENING_FLOOR * largest)
+    inverse_root = np.where(seen[:, None], 1.0 / np.sqrt(np.where(seen[:, None], floor, 1.0)), 1.0)
+    whitening = np.einsum("bij,bj,bkj->bik", vectors, inverse_root, vectors)
+    whitening[~seen] = np.eye(k)
+    return whitening
+
+
+def _half_squared_sum(residual: np.ndarray) -> float:
+    return 0.5 * float(residual @ residual)

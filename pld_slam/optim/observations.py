@@ -1,0 +1,274 @@
+"""Point and line observations, and the whitened residual rows every solver minimises.
+
+Pose-only tracking (`pose_only`) and bundle adjustment (`bundle_adjustment`) share these
+rows: stereo point reprojection errors (`point_reprojection`) and line vertical and
+horizontal errors (`line_reprojection`), each divided by its observation's sigma so that
+all residuals are in standard deviations. The paper leaves the covariances open. What we chose:
+
+- A stereo point is observed as ``(u_left, v, u_right)``, but ``u_left`` and ``u_right``
+  are not independent: the right column is the left one minus a sub-pixel disparity, so
+  they share the corner's localisation error. Measured against the ground-truth motion
+  (KITTI 06 and the synthetic street, octave-0 points two frames apart), ``u_left`` and
+  ``u_right`` each erred by 0.55-1.0 px while their difference erred by only 0.16-0.21 px
+  (two disparities' errors). Treating the three as independent with one sigma gave the
+  disparity an effective sigma of 1.4 px: depth and therefore scale were under-weighted,
+  and local BA drifted in scale. The rows are therefore whitened as ``u_left / sigma``,
+  ``v / sigma`` and the disparity ``(u_left - u_right) / sigma_d``: the third
+  sigma of `PointObservations.sigma_px` is the disparity's.
+- Corners: ``sigma = 1.2**octave`` (ORB-SLAM2); disparities ``points.disparity_sigma_px``
+  times the same factor.
+- Lines: one sigma per observation for both line terms.
+"""
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.optim.line_reprojection import (
+    LineErrorRows,
+    line_horizontal_rows,
+    line_row_errors,
+    line_vertical_rows,
+)
+from pld_slam.optim.point_reprojection import point_reprojection_error
+
+
+@dataclass(frozen=True)
+class PointObservations:
+    """N observations of world points, stereo or left image only.
+
+    A keypoint without a stereo match (``u_right`` NaN) is a monocular observation: its
+    ``u_right`` row weighs nothing, so it measures ``(u_left, v)`` only (2 dof instead of 3),
+    as ORB-SLAM2's monocular edges do beside its stereo ones.
+
+    Attributes
+    ----------
+    points_w : (N, 3) landmark positions in the world frame [m].
+    stereo_px : (N, 3) observed ``(u_left, v, u_right)`` [px], ``u_right`` NaN without a stereo match.
+    sigma_px : (N,) pixel standard deviation of each observation (``1.2**octave``), used for
+        ``u_left``, ``v`` and the disparity alike, or (N, 3) the standard deviations of
+        ``u_left``, ``v`` and the disparity ``u_left - u_right`` (module docstring).
+    """
+
+    points_w: np.ndarray
+    stereo_px: np.ndarray
+    sigma_px: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "PointObservations":
+        """No point observations."""
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+
+
+@dataclass(frozen=True)
+class LineObservations:
+    """M observations of world segments as detected segments in the left image.
+
+    Attributes
+    ----------
+    start_w, end_w : (M, 3) world endpoints ``P``, ``Q`` [m], ``P`` matched to ``start_px``.
+    start_px, end_px : (M, 2) detected endpoints ``s``, ``e`` in the left image [px].
+    sigma_px : (M,) pixel standard deviation of each observation, for both line terms.
+    horizontal_eligible : (M,) bool, the horizontal term may be used (endpoints away from
+        the border: `pld_slam.optim.line_reprojection.endpoints_away_from_border`).
+    """
+
+    start_w: np.ndarray
+    end_w: np.ndarray
+    start_px: np.ndarray
+    end_px: np.ndarray
+    sigma_px: np.ndarray
+    horizontal_eligible: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "LineObservations":
+        """No line observations."""
+        no_points, no_pixels = np.zeros((0, 3)), np.zeros((0, 2))
+        return cls(no_points, no_points, no_pixels, no_pixels, np.zeros(0), np.zeros(0, dtype=bool))
+
+
+@dataclass(frozen=True)
+class ObservationMasks:
+    """Which observations a solve uses, or which passed the chi-square tests.
+
+    Attributes
+    ----------
+    points : (N,) bool, per point observation.
+    lines : (M,) bool, per line observation (its vertical term, and the line as a whole).
+    line_horizontal : (M,) bool, per line observation, its horizontal term.
+    """
+
+    points: np.ndarray
+    lines: np.ndarray
+    line_horizontal: np.ndarray
+
+    @classmethod
+    def all_usable(
+        cls, points: PointObservations, lines: LineObservations, use_line_horizontal: bool
+    ) -> "ObservationMasks":
+        """Every observation, and the horizontal term wherever it is eligible and switched on."""
+        return cls(
+            points=np.ones(len(points.sigma_px), dtype=bool),
+            lines=np.ones(len(lines.sigma_px), dtype=bool),
+            line_horizontal=lines.horizontal_eligible & use_line_horizontal,
+        )
+
+
+
+class RowEvaluation(NamedTuple):
+    """Whitened residual rows evaluated at their poses and landmarks.
+
+    residual : (K,) whitened residuals; jac_pose : (K, 6) their Jacobian w.r.t. the left
+    perturbation ``delta`` of the row's pose; jac_landmark : (K, 3) w.r.t. the row's world
+    point (a point, or the line endpoint the row measures); valid : (K,) bool, that point
+    lies deeper than ``min_depth``.
+    """
+
+    residual: np.ndarray
+    jac_pose: np.ndarray
+    jac_landmark: np.ndarray
+    valid: np.ndarray
+
+    def select(self, row_mask: np.ndarray) -> "RowEvaluation":
+        """The rows where ``row_mask`` (K,) is True."""
+        return RowEvaluation(
+            self.residual[row_mask], self.jac_pose[row_mask], self.jac_landmark[row_mask], self.valid[row_mask]
+        )
+
+
+@dataclass(frozen=True)
+class WhitenedRows:
+    """The residual rows of a solve, each divided by its observation's sigma.
+
+    Rows: 3 per point (``u_left, v, u_right``), then 2 per vertical line term, then 2 per
+    horizontal line term (start, end), as `LineErrorRows`. Row ``k`` of the line rows
+    measures endpoint ``k % 2`` (start, end) of its observation.
+
+    Attributes
+    ----------
+    points_w, stereo_px : (N, 3) the points' world positions [m] and observations [px].
+    point_weight : (N, 3) ``1 / sigma`` of each point's rows.
+    line_rows : the 2 (Mv + Mh) whitened line rows.
+    n_vertical, n_horizontal : line observations Mv, Mh in each line term.
+    """
+
+    points_w: np.ndarray
+    stereo_px: np.ndarray
+    point_weight: np.ndarray
+    line_rows: LineErrorRows
+    n_vertical: int
+    n_horizontal: int
+
+    @classmethod
+    def of(
+        cls, points: PointObservations, vertical_lines: LineObservations, horizontal_lines: LineObservations
+    ) -> "WhitenedRows":
+        """The rows of the points and of the two line terms of the given lines."""
+        vertical_rows = whitened_line_rows(line_vertical_rows, vertical_lines)
+        horizontal_rows = whitened_line_rows(line_horizontal_rows, horizontal_lines)
+        monocular = np.isnan(points.stereo_px[:, 2])
+        point_weight = 1.0 / point_row_sigmas(points.sigma_px)
+        point_weight[monocular, 2] = 0.0
+        stereo_px = points.stereo_px.copy()
+        stereo_px[monocular, 2] = 0.0
+        return cls(
+            points.points_w,
+            stereo_px,
+            point_weight,
+            LineErrorRows.concatenate([vertical_rows, horizontal_rows]),
+            len(vertical_lines.sigma_px),
+            len(horizontal_lines.sigma_px),
+        )
+
+    def row_mask(self, masks: ObservationMasks) -> np.ndarray:
+        """(K,) bool, the rows of the points, vertical terms and horizontal terms selected by ``masks``.
+
+        ``masks.lines`` selects vertical terms, ``masks.line_horizontal`` horizontal ones.
+        """
+        return np.concatenate(
+            [np.repeat(masks.points, 3), np.repeat(masks.lines, 2), np.repeat(masks.line_horizontal, 2)]
+        )
+
+    def select(self, row_mask: np.ndarray) -> "WhitenedRows":
+        """The rows where ``row_mask`` (K,) is True (a point's or a line term's rows all or none)."""
+        point_mask = row_mask[: 3 * len(self.points_w) : 3]
+        line_mask = row_mask[3 * len(self.points_w) :]
+        vertical_rows = 2 * self.n_vertical
+        return WhitenedRows(
+            self.points_w[point_mask],
+            self.stereo_px[point_mask],
+            self.point_weight[point_mask],
+            self.line_rows.select(line_mask),
+            int(np.sum(line_mask[:vertical_rows])) // 2,
+            int(np.sum(line_mask[vertical_rows:])) // 2,
+        )
+
+    @property
+    def point_is_stereo(self) -> np.ndarray:
+        """(N,) bool, the point observations with a ``u_right`` (3 dof; the others have 2)."""
+        return self.point_weight[:, 2] > 0.0
+
+    def point_inliers(self, point_chi2: np.ndarray, chi2_stereo: float, chi2_monocular: float) -> np.ndarray:
+        """(N,) bool, the points whose chi2 (N,) passes the bound of their dof (stereo 3, monocular 2)."""
+        return point_chi2 <= np.where(self.point_is_stereo, chi2_stereo, chi2_monocular)
+
+    def with_landmarks(self, points_w: np.ndarray, line_endpoints_w: np.ndarray) -> "WhitenedRows":
+        """The same rows measuring other landmarks: points (N, 3) and one endpoint per line row (2 (Mv + Mh), 3)."""
+        line_rows = dataclasses.replace(self.line_rows, endpoints_w=line_endpoints_w)
+        return dataclasses.replace(self, points_w=points_w, line_rows=line_rows)
+
+    def evaluate(
+        self, camera: StereoCamera, point_T_c_w: np.ndarray, line_T_c_w: np.ndarray, min_depth: float
+    ) -> RowEvaluation:
+        """All rows at their poses: one ``T_c_w`` (4, 4) for all points / line rows, or one per
+        point (N, 4, 4) and per line row (2 (Mv + Mh), 4, 4)."""
+        point = point_reprojection_error(camera, point_T_c_w, self.points_w, self.stereo_px, min_depth)
+        line = line_row_errors(camera, line_T_c_w, self.line_rows, min_depth)
+        return RowEvaluation(
+            residual=np.concatenate([self._whiten_points(point.residual).ravel(), line.residual]),
+            jac_pose=np.concatenate([self._whiten_points(point.jac_pose).reshape(-1, 6), line.jac_pose]),
+            jac_landmark=np.concatenate([self._whiten_points(point.jac_point).reshape(-1, 3), line.jac_endpoint]),
+            valid=np.concatenate([np.repeat(point.valid, 3), line.valid]),
+        )
+
+    def _whiten_points(self, rows: np.ndarray) -> np.ndarray:
+        """Point rows (N, 3, ...) of ``u_left, v, u_right`` (values or derivatives) as whitened
+        ``u_left, v`` and disparity ``u_left - u_right`` rows (module docstring)."""
+        weight = self.point_weight.reshape(self.point_weight.shape + (1,) * (rows.ndim - 2))
+        whitened = np.empty_like(rows)
+        whitened[:, :2] = rows[:, :2] * weight[:, :2]
+        whitened[:, 2] = (rows[:, 0] - rows[:, 2]) * weight[:, 2]
+        return whitened
+
+    def chi2(self, evaluation: RowEvaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Squared whitened norm of every point (N,), vertical term (Mv,) and horizontal term (Mh,).
+
+        ``inf`` where a row's landmark does not project (depth ``<= min_depth``).
+        """
+        squares = np.where(evaluation.valid, evaluation.residual**2, np.inf)
+        point_end = 3 * len(self.points_w)
+        vertical_end = point_end + 2 * self.n_vertical
+        return (
+            squares[:point_end].reshape(-1, 3).sum(axis=1),
+            squares[point_end:vertical_end].reshape(-1, 2).sum(axis=1),
+            squares[vertical_end:].reshape(-1, 2).sum(axis=1),
+        )
+
+
+def point_row_sigmas(sigma_px: np.ndarray) -> np.ndarray:
+    """Sigmas (N, 3) (a new array) of the ``u_left, v``, disparity rows from one per point (N,) or per row (N, 3)."""
+    sigma_px = np.asarray(sigma_px, dtype=np.float64)
+    per_row = sigma_px if sigma_px.ndim == 2 else sigma_px[:, None]
+    return np.array(np.broadcast_to(per_row, (len(sigma_px), 3)))
+
+
+def whitened_line_rows(
+    rows_of: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], LineErrorRows], lines: LineObservations
+) -> LineErrorRows:
+    """The rows of one line term (`line_vertical_rows` or `line_horizontal_rows`) divided by their sigma."""
+    rows = rows_of(lines.start_w, lines.end_w, lines.start_px, lines.end_px)
+    return rows.scaled(np.repeat(1.0 / lines.sigma_px, 2))

@@ -1,0 +1,336 @@
+"""Tracking the local map: project its landmarks into the frame, match them, solve the pose.
+
+After the frame's first pose (against the reference frame, `pld_slam.tracking.tracker`),
+the paper measures it against the local map; we follow ORB-SLAM2's ``TrackLocalMap``.
+
+Local map. The reference keyframe (the last one inserted), then its covisible keyframes,
+strongest first, then theirs, up to ``mapping.tracking_keyframes``; the local map is the
+live landmarks they observe (`gather_local_map`). It changes only when local mapping
+changes the map, so the tracker keeps one snapshot per keyframe.
+
+Visibility. A landmark is searched for when it lies in front of the camera, projects
+inside the image, is seen within ``mapping.max_viewing_angle`` of its mean viewing
+direction and, for points, from a distance within its scale-invariance range (0.8 times
+its nearest to 1.2 times its farthest distance, as ORB-SLAM2). Such landmarks count as
+*visible* in this frame (the culling test of local mapping compares how often a landmark
+is found with how often it is visible).
+
+Points. The window around the projection is ``mapping.point_search_radius_px`` times
+``scale_factor**octave`` at the octave predicted from the distance
+(`pld_slam.mapping.landmarks.predicted_octaves`); candidates are current points found at
+that octave or the one below or above among all left keypoints (`LeftKeypoints`: a map
+point is found again where its corner is detected, stereo-matched or not); for a stereo
+keypoint, its right-image column must also lie within the window of the predicted one.
+Keypoints without a stereo match are monocular observations (`pld_slam.optim.observations`).
+The smallest Hamming distance under ``tracking.max_point_distance`` wins if it passes the
+ratio test. Lines: as frame-to-frame
+line matching (`pld_slam.tracking.matching.match_predicted_segments`), in a window of
+``mapping.line_search_radius_px`` around the predicted midpoint.
+
+Frame-to-frame points. The pose is solved over the map matches and, as ORB-SLAM2's stereo
+tracking does with its temporary "visual odometry" points, over the reference frame's
+matches whose current feature found no map point (`ReferenceMatches`, expressed in the
+world frame through the reference pose). Near points change appearance fastest and are
+found again in the map least (on the synthetic street, a point nearer than 10 m was
+matched in 21 % of the frames that should see it, against 40 % beyond 30 m); without
+these matches a frame's translation rested on far map points only and drifted by
+decimetres between keyframes.
+
+Dynamic features. A feature labelled dynamic (by the detectors, on the reference-frame
+matches) is matched like any other but never enters the pose: the landmark it matched is
+reported (``dynamic_point_ids``) so that local mapping can remove landmarks that keep
+landing on movers, and tracking never re-admits them.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pld_slam.config import Config
+from pld_slam.frontend import LeftKeypoints, StereoFeatures, StereoLines
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import inverse, transform_points
+from pld_slam.mapping.landmarks import Landmarks, PointLandmarks, predicted_octaves
+from pld_slam.mapping.map import Map
+from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
+from pld_slam.tracking.matching import (
+    FrameMatches,
+    match_predicted_segments,
+    pairs_within,
+    predict_segments,
+    select_matches,
+)
+from pld_slam.tracking.observations import line_observations, point_observations
+
+_MIN_DEPTH = 0.1
+"""A landmark nearer than this to the camera plane [m] is not searched for."""
+_NEAREST_SCALE, _FARTHEST_SCALE = 0.8, 1.2
+"""A point is searched between 0.8 x its nearest and 1.2 x its farthest distance (ORB-SLAM2)."""
+
+
+@dataclass(frozen=True)
+class LandmarkSnapshot:
+    """The landmarks of one kind in the local map: copies of their map columns.
+
+    Attributes
+    ----------
+    ids : (N,) int64 landmark ids, ascending.
+    geometry : (N, 3) points or (N, 2, 3) line endpoints, world [m].
+    descriptors : (N, 32) uint8.
+    normals : (N, 3) mean viewing directions (world).
+    max_distance : (N,) farthest distance at which a point is seen at octave 0 [m] (inf for lines).
+    """
+
+    ids: np.ndarray
+    geometry: np.ndarray
+    descriptors: np.ndarray
+    normals: np.ndarray
+    max_distance: np.ndarray
+
+    @classmethod
+    def of(cls, kind: Landmarks, ids: np.ndarray) -> "LandmarkSnapshot":
+        max_distance = kind.max_distance[ids] if isinstance(kind, PointLandmarks) else np.full(len(ids), np.inf)
+        return cls(ids, kind.geometry[ids], kind.descriptor[ids], kind.normal[ids], max_distance)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class LocalMap:
+    """The keyframes (ids, ``keyframes[0]`` the reference) and landmarks a frame is tracked against."""
+
+    keyframes: tuple[int, ...]
+    points: LandmarkSnapshot
+    lines: LandmarkSnapshot
+
+
+@dataclass(frozen=True)
+class ReferenceMatches:
+    """Static matches of the current frame to its reference frame, the reference side in the world frame.
+
+    Attributes
+    ----------
+    points_w : (K, 3) reference stereo points [m]; point_index : (K,) current keypoint of each.
+    lines_w : (M, 2, 3) reference segments [m]; line_index : (M,) current line of each.
+    """
+
+    points_w: np.ndarray
+    point_index: np.ndarray
+    lines_w: np.ndarray
+    line_index: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "ReferenceMatches":
+        return cls(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64))
+
+
+@dataclass(frozen=True)
+class MapMatches:
+    """Matches of snapshot landmarks (``matches.previous``: snapshot rows) to current features,
+    and which landmarks were visible (N,) bool."""
+
+    matches: FrameMatches
+    visible: np.ndarray
+
+
+@dataclass(frozen=True)
+class LocalMapTracking:
+    """The outcome of tracking the local map.
+
+    Attributes
+    ----------
+    solution : the pose-only solve (``T_c_w`` world to camera) over the static map matches and
+        the reference matches of the features without one.
+    point_ids, line_ids : (P,), (L,) int64 landmark of each keypoint / line that matched
+        one and is an inlier of ``solution``, ``-1`` otherwise.
+    visible_point_ids, visible_line_ids : landmarks predicted in view.
+    dynamic_point_ids, dynamic_line_ids : landmarks matched to features labelled dynamic.
+    point_matches, line_matches : static matches that entered the solve.
+    """
+
+    solution: PoseOnlyResult
+    point_ids: np.ndarray
+    line_ids: np.ndarray
+    visible_point_ids: np.ndarray
+    visible_line_ids: np.ndarray
+    dynamic_point_ids: np.ndarray
+    dynamic_line_ids: np.ndarray
+    point_matches: int
+    line_matches: int
+
+    @property
+    def tracked_landmarks(self) -> int:
+        """Landmarks (points + lines) matched as inliers."""
+        return int(np.count_nonzero(self.point_ids >= 0) + np.count_nonzero(self.line_ids >= 0))
+
+
+def local_keyframes(world_map: Map, reference: int, limit: int) -> tuple[int, ...]:
+    """The reference keyframe, its covisible keyframes strongest first, then theirs, up to ``limit`` ids."""
+    chosen = [reference]
+    frontier = [reference]
+    while frontier and len(chosen) < limit:
+        next_frontier = []
+        for keyframe in frontier:
+            for neighbour in world_map.covisibility.neighbours(keyframe):
+                if neighbour not in chosen and len(chosen) < limit:
+                    chosen.append(neighbour)
+                    next_frontier.append(neighbour)
+        frontier = next_frontier
+    return tuple(chosen)
+
+
+def gather_local_map(world_map: Map, reference: int, limit: int) -> LocalMap:
+    """The local map of keyframe ``reference`` (module docstring)."""
+    keyframes = local_keyframes(world_map, reference, limit)
+    snapshots = []
+    for kind in world_map.kinds:
+        ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
+        ids = np.unique(ids[ids >= 0])
+        snapshots.append(LandmarkSnapshot.of(kind, ids[kind.alive[ids]]))
+    return LocalMap(keyframes, *snapshots)
+
+
+def match_map_points(
+    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, current: LeftKeypoints, config: Config
+) -> MapMatches:
+    """Match the snapshot's points to the current left keypoints around their projections (module docstring)."""
+    if len(points) == 0 or len(current) == 0:
+        return MapMatches(FrameMatches.empty(), np.zeros(len(points), dtype=bool))
+    scale, levels = config.points.scale_factor, config.points.n_levels
+    p_c = transform_points(T_c_w, points.geometry)
+    in_front = p_c[:, 2] > _MIN_DEPTH
+    stereo_px = camera.project_stereo(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
+    distance = np.linalg.norm(p_c, axis=1)
+    nearest = points.max_distance / scale ** (levels - 1)
+    visible = (
+        in_front
+        & _inside_image(camera, stereo_px[:, :2])
+        & (distance >= _NEAREST_SCALE * nearest)
+        & (distance <= _FARTHEST_SCALE * points.max_distance)
+        & _within_viewing_angle(T_c_w, points.geometry, points.normals, config.mapping.max_viewing_angle)
+    )
+    octave = predicted_octaves(points.max_distance, distance, scale, levels)
+    radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
+    query, train = pairs_within(stereo_px[:, :2], visible, current.uv, radius)
+    near_octave = np.abs(current.octave[train] - octave[query]) <= 1
+    right_error = np.abs(current.u_right[train] - stereo_px[query, 2])
+    same_right_column = np.isnan(right_error) | (right_error <= radius[query])
+    keep = near_octave & same_right_column
+    matches = select_matches(
+        query[keep], train[keep], points.descriptors, current.descriptors, current.uv,
+        config.tracking.max_point_distance, config.tracking.ratio,
+    )
+    return MapMatches(matches, visible)
+
+
+def match_map_lines(
+    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, current: StereoLines, config: Config
+) -> MapMatches:
+    """Match the snapshot's lines to the current stereo lines around their projections (module docstring)."""
+    if len(lines) == 0 or len(current) == 0:
+        return MapMatches(FrameMatches.empty(), np.zeros(len(lines), dtype=bool))
+    predicted, in_front = predict_segments(camera, T_c_w, lines.geometry)
+    midpoints = lines.geometry.mean(axis=1)
+    visible = (
+        in_front
+        & _inside_image(camera, 0.5 * (predicted[:, :2] + predicted[:, 2:]))
+        & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle)
+    )
+    matches = match_predicted_segments(
+        predicted, visible, lines.descriptors, current, config.mapping.line_search_radius_px,
+        config.tracking.line_max_angle_change, config.tracking.max_line_distance, config.tracking.ratio,
+    )
+    return MapMatches(matches, visible)
+
+
+def track_local_map(
+    camera: StereoCamera,
+    T_c_w_init: np.ndarray,
+    local_map: LocalMap,
+    features: StereoFeatures,
+    dynamic_points: np.ndarray,
+    dynamic_lines: np.ndarray,
+    config: Config,
+    pose_options: PoseOnlyOptions,
+    reference: ReferenceMatches,
+) -> LocalMapTracking:
+    """Match the local map into the frame from ``T_c_w_init`` (4, 4) and solve ``T_c_w`` over the static
+    matches and the ``reference`` matches of features without a map match (module docstring).
+
+    ``dynamic_points`` (P,) and ``dynamic_lines`` (L,) bool label the frame's keypoints and lines.
+    """
+    keypoints = features.keypoints
+    point_matches = match_map_points(camera, T_c_w_init, local_map.points, keypoints, config)
+    line_matches = match_map_lines(camera, T_c_w_init, local_map.lines, features.lines, config)
+    static_points = _static(point_matches.matches, dynamic_points)
+    static_lines = _static(line_matches.matches, dynamic_lines)
+    extra_points = ~np.isin(reference.point_index, static_points.current)
+    extra_lines = ~np.isin(reference.line_index, static_lines.current)
+    solution = optimize_pose_rejecting_outliers(
+        camera,
+        T_c_w_init,
+        points=point_observations(
+            np.concatenate([local_map.points.geometry[static_points.previous], reference.points_w[extra_points]]),
+            keypoints,
+            np.concatenate([static_points.current, reference.point_index[extra_points]]),
+            config.points,
+        ),
+        lines=line_observations(
+            camera,
+            np.concatenate([local_map.lines.geometry[static_lines.previous], reference.lines_w[extra_lines]]),
+            features.lines,
+            np.concatenate([static_lines.current, reference.line_index[extra_lines]]),
+            config,
+        ),
+        options=pose_options,
+    )
+    map_point_inliers = solution.inliers.points[: len(static_points)]
+    map_line_inliers = solution.inliers.lines[: len(static_lines)]
+    return LocalMapTracking(
+        solution=solution,
+        point_ids=_inlier_ids(len(keypoints), static_points, map_point_inliers, local_map.points.ids),
+        line_ids=_inlier_ids(len(features.lines), static_lines, map_line_inliers, local_map.lines.ids),
+        visible_point_ids=local_map.points.ids[point_matches.visible],
+        visible_line_ids=local_map.lines.ids[line_matches.visible],
+        dynamic_point_ids=local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous],
+        dynamic_line_ids=local_map.lines.ids[_dynamic(line_matches.matches, dynamic_lines).previous],
+        point_matches=len(static_points),
+        line_matches=len(static_lines),
+    )
+
+
+def _inside_image(camera: StereoCamera, pixels: np.ndarray) -> np.ndarray:
+    """Whether pixels (N, 2) lie inside the image (N,)."""
+    return (
+        (pixels[:, 0] >= 0.0) & (pixels[:, 0] <= camera.width - 1.0)
+        & (pixels[:, 1] >= 0.0) & (pixels[:, 1] <= camera.height - 1.0)
+    )
+
+
+def _within_viewing_angle(
+    T_c_w: np.ndarray, centres_w: np.ndarray, normals: np.ndarray, max_angle: float
+) -> np.ndarray:
+    """Whether the camera sees landmarks at ``centres_w`` (N, 3) within ``max_angle`` of their ``normals`` (N,)."""
+    rays = centres_w - inverse(T_c_w)[:3, 3]
+    cosine = np.einsum("ij,ij->i", rays, normals) / np.maximum(np.linalg.norm(rays, axis=1), 1e-12)
+    return cosine >= np.cos(max_angle)
+
+
+def _static(matches: FrameMatches, dynamic: np.ndarray) -> FrameMatches:
+    """The matches whose current feature is not labelled dynamic."""
+    keep = ~dynamic[matches.current]
+    return FrameMatches(matches.previous[keep], matches.current[keep])
+
+
+def _dynamic(matches: FrameMatches, dynamic: np.ndarray) -> FrameMatches:
+    """The matches whose current feature is labelled dynamic."""
+    keep = dynamic[matches.current]
+    return FrameMatches(matches.previous[keep], matches.current[keep])
+
+
+def _inlier_ids(n_features: int, matches: FrameMatches, inliers: np.ndarray, snapshot_ids: np.ndarray) -> np.ndarray:
+    """(n_features,) int64 landmark id of each feature matched as an inlier, -1 elsewhere."""
+    ids = np.full(n_features, -1, dtype=np.int64)
+    ids[matches.current[inliers]] = snapshot_ids[matches.previous[inliers]]
+    return ids
