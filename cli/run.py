@@ -33,6 +33,15 @@ def format_run_table(summary: dict) -> str:
         ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")),
         ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
     ]
+    mapping = summary["mapping"]
+    if mapping is not None:
+        landmarks = mapping["landmarks"]
+        rows += [
+            ("keyframes (kept)", f"{mapping['keyframes']} ({mapping['keyframes_alive']})"),
+            ("landmarks points / lines", f"{landmarks['points']} / {landmarks['lines']}"),
+            ("local BA ms (median / max)", number(mapping["local_ba"]["ms_median"], "{:.0f}", "")
+             + " / " + number(mapping["local_ba"]["ms_max"], "{:.0f}", "")),
+        ]
     for kind in ("points", "lines"):
         quality = summary["dynamic"][kind]
         if quality["on_moving_objects"]:

@@ -147,6 +147,9 @@ class TrackingConfig:
     reference_min_inlier_ratio: float = _param(
         0.5, "the current frame becomes the reference when inliers fall below this share of the first", 0.0, 1.0
     )
+    relocalisation_keyframes: int = _param(
+        5, "keyframes most similar by GGS tried, in order, when the local map cannot pose a frame", 0
+    )
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ for, so opening a 4,541-frame KITTI sequence costs a directory listing.
 """
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -116,8 +116,42 @@ class StereoSequence:
         for index in range(len(self)):
             yield self[index]
 
+    def subsequence(self, start: int = 0, step: int = 1) -> "StereoSequence":
+        """Every ``step``-th frame from frame ``start``, with the ground truth re-based on the first.
+
+        Frames keep their timestamps; the ground truth keeps its poses from the first kept
+        frame's time on, moved so that the pose at that time is the identity (the world of
+        a run is its first camera). Ground truth without a pose within 10 ms of the first
+        kept frame cannot be re-based and is dropped. The name says which frames were kept
+        (``kitti_06_from10_every2``). For checks of tracking from a moving start or with
+        dropped frames.
+        """
+        if not 0 <= start < len(self) or step < 1:
+            raise DatasetError(f"{self.root}: no frames from {start} every {step} in {len(self)} frames")
+        keep = np.arange(start, len(self), step)
+        masks = None if self.dynamic_mask_paths is None else [self.dynamic_mask_paths[i] for i in keep]
+        return replace(
+            self,
+            name=f"{self.name}_from{start}_every{step}",
+            timestamps=self.timestamps[keep],
+            left_paths=[self.left_paths[i] for i in keep],
+            right_paths=[self.right_paths[i] for i in keep],
+            groundtruth=_rebased_from(self.groundtruth, float(self.timestamps[start])),
+            dynamic_mask_paths=masks,
+        )
+
     def dynamic_mask(self, index: int) -> np.ndarray | None:
         """Boolean (H, W) mask of moving-object pixels in left frame ``index``, or None."""
         if self.dynamic_mask_paths is None:
             return None
         return read_grey(self.dynamic_mask_paths[index]) > 0
+
+
+def _rebased_from(groundtruth: Trajectory | None, start_time: float) -> Trajectory | None:
+    """``groundtruth`` from ``start_time`` [s] on, its pose there the identity; None without one within 10 ms."""
+    if groundtruth is None:
+        return None
+    later = groundtruth.timestamps >= start_time - 0.01
+    if not later.any() or abs(groundtruth.timestamps[later][0] - start_time) > 0.01:
+        return None
+    return Trajectory(groundtruth.timestamps[later], groundtruth.poses[later]).relative_to_first()

@@ -5,6 +5,7 @@
 too few frames overlap it.
 """
 
+from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
@@ -96,6 +97,47 @@ def _label_quality(per_frame: list[LabelCounts | None]) -> dict[str, float | int
     }
 
 
+def mapping_summary(result: RunResult) -> dict | None:
+    """What local mapping did over the run; None without a map (``mapping.enabled: false``).
+
+    ``keyframes`` were inserted (``keyframe_reasons`` says why, `pld_slam.keyframes`) and
+    ``keyframes_alive`` remain after culling; ``landmarks`` are alive at the end and
+    ``landmarks_created`` over the run; ``culled`` counts landmarks and keyframes removed;
+    ``local_ba`` has the runs and their median and max wall time [ms] and residual
+    evaluations, and the outlier observations they removed; ``step_ms_median`` the median
+    wall time of each step of a keyframe's insertion.
+    """
+    world_map = result.map
+    if world_map is None:
+        return None
+    insertions = result.insertions
+    reasons = Counter(r.keyframe.value for r in result.records if r.keyframe is not None)
+    ba = [i.local_ba for i in insertions if i.local_ba is not None]
+    steps = sorted({step for i in insertions for step in i.stage_ms})
+    return {
+        "keyframes": len(insertions),
+        "keyframes_alive": len(world_map.keyframes),
+        "keyframe_reasons": dict(sorted(reasons.items())),
+        "landmarks": {"points": world_map.points.n_alive, "lines": world_map.lines.n_alive},
+        "landmarks_created": {"points": len(world_map.points), "lines": len(world_map.lines)},
+        "culled": {
+            "landmarks": sum(i.culled_landmarks for i in insertions),
+            "keyframes": sum(len(i.culled_keyframes) for i in insertions),
+        },
+        "fused": sum(i.fused for i in insertions),
+        "local_ba": {
+            "runs": len(ba),
+            "ms_median": _median_or_none([b.ms for b in ba]),
+            "ms_max": max((b.ms for b in ba), default=None),
+            "nfev_median": _median_or_none([b.nfev for b in ba]),
+            "nfev_max": max((b.nfev for b in ba), default=None),
+            "removed_observations": sum(b.removed_observations for b in ba),
+        },
+        "step_ms_median": {step: _median_or_none([i.stage_ms[step] for i in insertions if step in i.stage_ms])
+                           for step in steps},
+    }
+
+
 def _median_or_none(values: list[int]) -> float | None:
     """Median of ``values``, None for none (a run stopped at its first frame)."""
     return float(np.median(values)) if values else None
@@ -119,6 +161,7 @@ def summarise_run(
         "completed": result.stop_reason is None,
         "stop_reason": result.stop_reason,
         "tracking_failures": [r.index for r in records if r.status is TrackingStatus.LOST],
+        "recovered_frames": [r.index for r in records if r.status is TrackingStatus.RECOVERED],
         "skipped_frames": [{"index": r.index, "reason": r.skipped_reason} for r in records if r.skipped_reason],
         "timing_ms": stage_timing(result),
         "wall_seconds": result.wall_seconds,
@@ -129,7 +172,10 @@ def summarise_run(
             "stereo_lines": _median_or_none([r.n_lines for r in records]),
             "point_inliers": _median_or_none([r.counts.point_inliers for r in records[1:]]),
             "line_inliers": _median_or_none([r.counts.line_inliers for r in records[1:]]),
+            "map_point_inliers": _median_or_none([r.counts.map_point_inliers for r in records[1:]]),
+            "map_line_inliers": _median_or_none([r.counts.map_line_inliers for r in records[1:]]),
         },
+        "mapping": mapping_summary(result),
         "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
         "config_sources": None if config_sources is None else list(config_sources),

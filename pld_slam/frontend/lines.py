@@ -84,6 +84,14 @@ class StereoLines:
     def __len__(self) -> int:
         return self.endpoints.shape[0]
 
+    @property
+    def right_endpoints(self) -> np.ndarray:
+        """(M, 4) two points ``(u_s, v_s, u_e, v_e)`` of each segment in the right image [px]: the
+        left endpoints' rows, shifted by their disparities (on the right segment's line)."""
+        shifted = self.endpoints.copy()
+        shifted[:, [0, 2]] -= self.disparity
+        return shifted
+
     @classmethod
     def empty(cls) -> "StereoLines":
         """No lines (lines disabled, or none found)."""

@@ -158,6 +158,7 @@ def _line_observations(
     world_map: Map, observed: _Observations, keyframes: np.ndarray, camera: StereoCamera, config: Config
 ) -> BundleLineObservations:
     endpoints = world_map.feature_attribute(world_map.lines, "endpoints", observed.keyframe, observed.feature)
+    disparity = world_map.feature_attribute(world_map.lines, "disparity", observed.keyframe, observed.feature)
     start_px, end_px = endpoints[:, :2], endpoints[:, 2:]
     return BundleLineObservations(
         keyframe=np.searchsorted(keyframes, observed.keyframe),
@@ -166,6 +167,8 @@ def _line_observations(
         end_px=end_px,
         sigma_px=np.full(len(observed.row), config.tracking.line_sigma_px),
         horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
+        right_start_px=start_px - np.column_stack([disparity[:, 0], np.zeros(len(disparity))]),
+        right_end_px=end_px - np.column_stack([disparity[:, 1], np.zeros(len(disparity))]),
     )
 
 

@@ -194,8 +194,9 @@ class Map:
         if len(landmarks) == 0:
             return
         rows, keyframes, features = self.observation_table(kind, landmarks)
-        centres = np.array([self.keyframes[k].centre for k in keyframes.tolist()]).reshape(-1, 3)
-        rays = kind.centres(landmarks)[rows] - centres
+        observers, observer_of = np.unique(keyframes, return_inverse=True)
+        centres = np.array([self.keyframes[k].centre for k in observers.tolist()]).reshape(-1, 3)
+        rays = kind.centres(landmarks)[rows] - centres[observer_of]
         distance = np.linalg.norm(rays, axis=1)
         normal = np.zeros((len(landmarks), 3))
         np.add.at(normal, rows, rays / np.maximum(distance, 1e-12)[:, None])

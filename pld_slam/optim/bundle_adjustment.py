@@ -28,12 +28,23 @@ and ``tr_solver="lsmr"`` (the one combination that takes a sparse Jacobian) and
 observation of a keyframe, a point shift three rows), and scaling by column norms is
 what makes LSMR converge in few iterations.
 
+Line endpoints. The horizontal error assumes that an observation's detected endpoints are
+the map line's endpoints; a segment seen shorter or longer (occlusion, LSD cutting it
+elsewhere) breaks that, and its horizontal error cannot be met by any geometry. Under
+the Huber loss such a term still pulls linearly: in local BA on the synthetic street a
+line whose two observations ended 90 px apart along the line (horizontal chi2 3,782) had
+one endpoint thrown 300 m away, and half the lines of a window moved more than 5 m. A
+horizontal term enters the solve only where it passes its chi-square test at the start,
+at the tracked poses; the vertical error (distance to the infinite line) has no such
+assumption and always enters.
+
 Rounds, as ORB-SLAM2's ``LocalBundleAdjustment``: a robust solve; the observations that
 fail their chi-square test at its solution (or whose landmark lies behind the camera)
 are left out of a second, plain solve; every observation is then tested at the result,
 and `BundleResult.inliers` tells the caller which to drop from the map.
 """
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,7 +61,7 @@ from pld_slam.optim.observations import (
     WhitenedRows,
 )
 from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, HUBER_SCALE, huber_without_curvature
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF, HUBER_SCALE, huber_without_curvature
 
 _STOPPING_TOLERANCES = dict(ftol=1e-4, xtol=1e-8, gtol=1e-8)
 """Stop when a step lowers the cost by less than 0.01 %: BA refines a map that tracking
@@ -86,6 +97,8 @@ class BundleLineObservations:
     start_px, end_px : (N, 2) detected endpoints [px], ``start_px`` matched to the line's start.
     sigma_px : (N,) pixel sigma of each observation.
     horizontal_eligible : (N,) bool, the horizontal term may be used.
+    right_start_px, right_end_px : (N, 2) the segment in the right image, or None
+        (`pld_slam.optim.observations.LineObservations`).
     """
 
     keyframe: np.ndarray
@@ -94,6 +107,8 @@ class BundleLineObservations:
     end_px: np.ndarray
     sigma_px: np.ndarray
     horizontal_eligible: np.ndarray
+    right_start_px: np.ndarray | None = None
+    right_end_px: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -125,8 +140,9 @@ class BundleOptions:
     ----------
     use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
     huber_scale : Huber ``f_scale`` [whitened units] of the robust round.
-    chi2_point, chi2_monocular_point, chi2_line : chi-square bounds of a stereo point (3 dof), a
-        point seen in the left image only (2 dof) and a line term (2 dof).
+    chi2_point, chi2_monocular_point, chi2_line, chi2_stereo_line : chi-square bounds of a
+        stereo point (3 dof), a point seen in the left image only (2 dof), a line term in one
+        image (2 dof) and a vertical term in both images (4 dof).
     max_nfev : residual evaluations allowed per round.
     min_depth : smallest landmark depth [m] that counts as in front of a camera.
     """
@@ -137,6 +153,7 @@ class BundleOptions:
     chi2_point: float = CHI2_95_3DOF
     chi2_monocular_point: float = CHI2_95_2DOF
     chi2_line: float = CHI2_95_2DOF
+    chi2_stereo_line: float = CHI2_95_4DOF
     max_nfev: int = 10
     min_depth: float = MIN_DEPTH
 
@@ -242,17 +259,22 @@ class _BundleRows:
             end_px=lines.end_px,
             sigma_px=lines.sigma_px,
             horizontal_eligible=lines.horizontal_eligible,
+            right_start_px=lines.right_start_px,
+            right_end_px=lines.right_end_px,
         )
         rows = WhitenedRows.of(
             PointObservations(problem.points_w[points.point], points.stereo_px, points.sigma_px),
             line_observations,
             line_observations,
         )
-        line_endpoint = n_points + 2 * np.repeat(lines.line, 2) + np.tile([0, 1], len(lines.line))
+        start_end = n_points + 2 * lines.line[:, None] + np.arange(2)  # (N, 2) world points of each line
+        vertical_endpoint = np.tile(start_end, 2).ravel()  # left start, end, right start, end
         return cls(
             rows=rows,
-            row_pose=np.concatenate([np.repeat(points.keyframe, 3), np.tile(np.repeat(lines.keyframe, 2), 2)]),
-            row_world_point=np.concatenate([np.repeat(points.point, 3), np.tile(line_endpoint, 2)]),
+            row_pose=np.concatenate(
+                [np.repeat(points.keyframe, 3), np.repeat(lines.keyframe, 4), np.repeat(lines.keyframe, 2)]
+            ),
+            row_world_point=np.concatenate([np.repeat(points.point, 3), vertical_endpoint, start_end.ravel()]),
             fixed_pose=np.asarray(problem.fixed, dtype=bool),
             horizontal_eligible=lines.horizontal_eligible,
             options=options,
@@ -264,36 +286,42 @@ class _BundleRows:
 
     def evaluate(self, camera: StereoCamera, state: _State, min_depth: float) -> RowEvaluation:
         """Every row at ``state``."""
-        return self.select_evaluate(camera, state, np.ones(len(self.row_pose), dtype=bool), min_depth)
-
-    def select_evaluate(
-        self, camera: StereoCamera, state: _State, row_mask: np.ndarray, min_depth: float
-    ) -> RowEvaluation:
-        """The rows where ``row_mask`` (R,) is True, at ``state``."""
-        rows = self.rows.select(row_mask)
-        world_point = self.row_world_point[row_mask]
-        pose = self.row_pose[row_mask]
-        n_point_rows = 3 * len(rows.points_w)
-        world_points = state.world_points
-        rows = rows.with_landmarks(world_points[world_point[:n_point_rows:3]], world_points[world_point[n_point_rows:]])
-        T_c_w = state.T_c_w[pose]
+        n_point_rows = 3 * len(self.rows.points_w)
+        world_points = state.world_points[self.row_world_point]
+        rows = self.rows.with_landmarks(world_points[:n_point_rows:3], world_points[n_point_rows:])
+        T_c_w = state.T_c_w[self.row_pose]
         return rows.evaluate(camera, T_c_w[:n_point_rows:3], T_c_w[n_point_rows:], min_depth)
 
+    def select(self, row_mask: np.ndarray) -> "_BundleRows":
+        """The rows where ``row_mask`` (R,) is True (a term's rows all or none)."""
+        return dataclasses.replace(
+            self,
+            rows=self.rows.select(row_mask),
+            row_pose=self.row_pose[row_mask],
+            row_world_point=self.row_world_point[row_mask],
+        )
+
     def usable(self, evaluation: RowEvaluation) -> ObservationMasks:
-        """Every observation whose landmark projects, with the line terms the options switch on."""
-        point_chi2, vertical_chi2, _ = self.rows.chi2(evaluation)
+        """Every observation whose landmark projects, with the line terms the options switch on; a
+        horizontal term only where it passes its chi-square test at the start (module docstring)."""
+        point_chi2, vertical_chi2, horizontal_chi2 = self.rows.chi2(evaluation)
         in_front = np.isfinite(vertical_chi2)
+        corresponding = horizontal_chi2 <= self.options.chi2_line
         return ObservationMasks(
             points=np.isfinite(point_chi2),
             lines=in_front & self.options.use_line_vertical,
-            line_horizontal=in_front & self.horizontal_eligible & self.options.use_line_horizontal,
+            line_horizontal=in_front & self.horizontal_eligible & self.options.use_line_horizontal & corresponding,
         )
 
     def inliers(self, evaluation: RowEvaluation, options: BundleOptions) -> ObservationMasks:
         """The observations passing their chi-square tests (``lines``: the vertical term, or
         in front of the camera when that term is off; ``line_horizontal``: only with its line)."""
         point_chi2, vertical_chi2, horizontal_chi2 = self.rows.chi2(evaluation)
-        lines = vertical_chi2 <= options.chi2_line if options.use_line_vertical else np.isfinite(vertical_chi2)
+        lines = (
+            self.rows.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
+            if options.use_line_vertical
+            else np.isfinite(vertical_chi2)
+        )
         return ObservationMasks(
             points=self.rows.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
             lines=lines,
@@ -350,9 +378,8 @@ class _SparseProblem:
 
     def __init__(self, camera: StereoCamera, every_row: _BundleRows, start: _State, row_mask: np.ndarray) -> None:
         self._camera = camera
-        self._every_row = every_row
+        self._rows = every_row.select(row_mask)
         self._start = start
-        self._row_mask = row_mask
         self._min_depth = every_row.options.min_depth
         self._free = np.flatnonzero(~every_row.fixed_pose)
         pose_column = np.full(len(start.T_c_w), -1)
@@ -418,7 +445,7 @@ class _SparseProblem:
         return _State(T_c_w, points_w, lines_w)
 
     def _evaluate_x(self, x: np.ndarray) -> RowEvaluation:
-        return self._every_row.select_evaluate(self._camera, self._state_at(x), self._row_mask, self._min_depth)
+        return self._rows.evaluate(self._camera, self._state_at(x), self._min_depth)
 
     def _evaluate(self, y: np.ndarray) -> RowEvaluation:
         """The included rows at ``y``, computed once per ``y``."""

@@ -36,6 +36,16 @@ endpoint reprojection error ``x - y`` (predicted minus observed, as for points),
 two errors are the coordinates of the endpoint error in the orthonormal frame
 ``(n, d)`` of the detected line: vertical**2 + horizontal**2 = |x - y|**2.
 
+The right image. The paper measures both errors in the left image, where a segment's
+depth is free: it rests on the other keyframes' views alone, and for a line along the
+direction of travel (a kerb, a facade's edge) those are nearly the same plane, so map
+lines slid tens to hundreds of metres in local BA. A stereo observation also sees the
+segment in the right image, at the endpoint disparities the front end measured; the
+vertical error of the projected endpoints to that right line (projected into the right
+camera, ``u_right = u_left - bf / z``) fixes the depth, as PL-SLAM's stereo formulation
+does. A row therefore measures an endpoint's projection in the left or the right image
+(`LineErrorRows.right`); the horizontal error stays in the left image, as the paper has it.
+
 Rows. Both errors are affine in a projected endpoint, ``axis . x + offset``, with an axis
 and offset fixed by the detection: `LineErrorRows`, one scalar row per endpoint. A solver
 that evaluates them at many poses builds the rows once (`line_vertical_rows`,
@@ -114,7 +124,8 @@ def endpoints_away_from_border(
 
 @dataclass(frozen=True)
 class LineErrorRows:
-    """M scalar line errors ``axis . x + offset``, ``x`` the left-image projection of a world endpoint.
+    """M scalar line errors ``axis . x + offset``, ``x`` the projection of a world endpoint in the left
+    image, or in the right one where ``right``.
 
     Both line errors have this form, one row per endpoint of a segment, the axis being the
     detected line's normal ``n`` (vertical error) or direction ``d`` (horizontal error).
@@ -125,19 +136,21 @@ class LineErrorRows:
     endpoints_w : (M, 3) world endpoint of each row [m].
     axes : (M, 2) image axis of each row.
     offsets : (M,) offset of each row [px].
+    right : (M,) bool, the row measures the right image.
     """
 
     endpoints_w: np.ndarray
     axes: np.ndarray
     offsets: np.ndarray
+    right: np.ndarray
 
     def scaled(self, factor: np.ndarray) -> "LineErrorRows":
         """The rows multiplied by ``factor`` (M,) (e.g. whitened by ``1 / sigma``)."""
-        return LineErrorRows(self.endpoints_w, self.axes * factor[:, None], self.offsets * factor)
+        return LineErrorRows(self.endpoints_w, self.axes * factor[:, None], self.offsets * factor, self.right)
 
     def select(self, mask: np.ndarray) -> "LineErrorRows":
         """The rows where ``mask`` (M,) is True."""
-        return LineErrorRows(self.endpoints_w[mask], self.axes[mask], self.offsets[mask])
+        return LineErrorRows(self.endpoints_w[mask], self.axes[mask], self.offsets[mask], self.right[mask])
 
     @staticmethod
     def concatenate(rows: "list[LineErrorRows]") -> "LineErrorRows":
@@ -146,6 +159,7 @@ class LineErrorRows:
             np.concatenate([r.endpoints_w for r in rows]),
             np.concatenate([r.axes for r in rows]),
             np.concatenate([r.offsets for r in rows]),
+            np.concatenate([r.right for r in rows]),
         )
 
 
@@ -168,14 +182,15 @@ class LineRowErrors:
 
 
 def line_vertical_rows(
-    start_w: np.ndarray, end_w: np.ndarray, start_px: np.ndarray, end_px: np.ndarray
+    start_w: np.ndarray, end_w: np.ndarray, start_px: np.ndarray, end_px: np.ndarray, right: bool = False
 ) -> LineErrorRows:
     """The 2N rows of `line_vertical_error`: row ``2i`` the start term, ``2i + 1`` the end term of segment i.
 
-    Parameters as in `line_vertical_error`.
+    Parameters as in `line_vertical_error`; with ``right`` the detected endpoints are in
+    the right image and the rows measure the right-image projections.
     """
     line = detected_line_coefficients(start_px, end_px)
-    return _segment_rows(start_w, end_w, line[:, :2], line[:, 2], line[:, 2])
+    return _segment_rows(start_w, end_w, line[:, :2], line[:, 2], line[:, 2], right)
 
 
 def line_horizontal_rows(
@@ -183,7 +198,9 @@ def line_horizontal_rows(
 ) -> LineErrorRows:
     """The 2N rows of `line_horizontal_error`, ordered as in `line_vertical_rows`."""
     direction = detected_line_directions(start_px, end_px)
-    return _segment_rows(start_w, end_w, direction, -_row_dot(direction, start_px), -_row_dot(direction, end_px))
+    return _segment_rows(
+        start_w, end_w, direction, -_row_dot(direction, start_px), -_row_dot(direction, end_px), right=False
+    )
 
 
 def line_row_errors(
@@ -192,16 +209,18 @@ def line_row_errors(
     """The values of line error rows at ``T_c_w`` (4, 4), or one pose per row (M, 4, 4), with Jacobians.
 
     An endpoint at depth ``<= min_depth`` [m] is projected at that depth and flags its row
-    not valid (module docstring). Only the left-image rows of the projection are formed:
-    a row's derivative w.r.t. its camera-frame endpoint is ``axis . d(u_left, v) / d p_c``
-    (3,), which gives the pose and endpoint Jacobians without the (M, 3, 6) and (M, 3, 3)
-    stereo ones: measured 1.5x faster for 400 rows than `project_stereo_with_jacobians`.
+    not valid (module docstring). A row's derivative w.r.t. its camera-frame endpoint is
+    ``axis . d(u, v) / d p_c`` (3,) with ``u`` the left or right column, which gives the
+    pose and endpoint Jacobians without the (M, 3, 6) and (M, 3, 3) stereo ones: measured
+    1.5x faster for 400 rows than `project_stereo_with_jacobians`.
     """
     seen = to_camera_frame(T_c_w, rows.endpoints_w, min_depth)
-    d_left_pixel_d_pc = clamped_stereo_pixel_jacobian(camera, seen)[:, :2]
-    gradient = np.einsum("ij,ijk->ik", rows.axes, d_left_pixel_d_pc)
+    image_rows = np.where(rows.right[:, None], [2, 1], [0, 1])
+    d_pixel_d_pc = np.take_along_axis(clamped_stereo_pixel_jacobian(camera, seen), image_rows[:, :, None], axis=1)
+    pixels = np.take_along_axis(camera.project_stereo(seen.clamped), image_rows, axis=1)
+    gradient = np.einsum("ij,ijk->ik", rows.axes, d_pixel_d_pc)
     return LineRowErrors(
-        residual=_row_dot(rows.axes, camera.project(seen.clamped)) + rows.offsets,
+        residual=_row_dot(rows.axes, pixels) + rows.offsets,
         jac_pose=pose_jacobian_from_camera_gradient(seen.p_c, gradient[:, None])[:, 0],
         jac_endpoint=times_rotation(gradient[:, None], T_c_w[..., :3, :3])[:, 0],
         valid=seen.valid,
@@ -254,7 +273,12 @@ def line_horizontal_error(
 
 
 def _segment_rows(
-    start_w: np.ndarray, end_w: np.ndarray, axis: np.ndarray, offset_start: np.ndarray, offset_end: np.ndarray
+    start_w: np.ndarray,
+    end_w: np.ndarray,
+    axis: np.ndarray,
+    offset_start: np.ndarray,
+    offset_end: np.ndarray,
+    right: bool,
 ) -> LineErrorRows:
     """Rows ``axis . p + offset_start``, ``axis . q + offset_end`` of N segments, interleaved (2N rows).
 
@@ -265,6 +289,7 @@ def _segment_rows(
         endpoints_w=np.stack([start_w, end_w], axis=1).reshape(-1, 3),
         axes=np.repeat(axis, 2, axis=0),
         offsets=np.column_stack([offset_start, offset_end]).ravel(),
+        right=np.full(2 * len(start_w), right),
     )
 
 

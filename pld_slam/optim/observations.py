@@ -17,7 +17,10 @@ all residuals are in standard deviations. The paper leaves the covariances open.
   sigma of `PointObservations.sigma_px` is the disparity's.
 - Corners: ``sigma = 1.2**octave`` (ORB-SLAM2); disparities ``points.disparity_sigma_px``
   times the same factor.
-- Lines: one sigma per observation for both line terms.
+- Lines: one sigma per observation for both line terms. A line's vertical term has four
+  rows, the start and end in the left image and, where the right segment is known, in
+  the right image (`pld_slam.optim.line_reprojection` says why); without it the right
+  rows weigh nothing and the term has 2 dof instead of 4.
 """
 
 import dataclasses
@@ -66,7 +69,7 @@ class PointObservations:
 
 @dataclass(frozen=True)
 class LineObservations:
-    """M observations of world segments as detected segments in the left image.
+    """M observations of world segments as detected segments in the left image (and the right).
 
     Attributes
     ----------
@@ -75,6 +78,9 @@ class LineObservations:
     sigma_px : (M,) pixel standard deviation of each observation, for both line terms.
     horizontal_eligible : (M,) bool, the horizontal term may be used (endpoints away from
         the border: `pld_slam.optim.line_reprojection.endpoints_away_from_border`).
+    right_start_px, right_end_px : (M, 2) two points of the segment in the right image [px]
+        (the left endpoints' rows, shifted by their disparities), NaN rows where unknown;
+        None: unknown for every observation.
     """
 
     start_w: np.ndarray
@@ -83,6 +89,8 @@ class LineObservations:
     end_px: np.ndarray
     sigma_px: np.ndarray
     horizontal_eligible: np.ndarray
+    right_start_px: np.ndarray | None = None
+    right_end_px: np.ndarray | None = None
 
     @classmethod
     def empty(cls) -> "LineObservations":
@@ -144,15 +152,16 @@ class RowEvaluation(NamedTuple):
 class WhitenedRows:
     """The residual rows of a solve, each divided by its observation's sigma.
 
-    Rows: 3 per point (``u_left, v, u_right``), then 2 per vertical line term, then 2 per
-    horizontal line term (start, end), as `LineErrorRows`. Row ``k`` of the line rows
-    measures endpoint ``k % 2`` (start, end) of its observation.
+    Rows: 3 per point (``u_left, v``, disparity), then 4 per vertical line term (start and
+    end in the left image, then in the right), then 2 per horizontal line term (start,
+    end), as `LineErrorRows`. Row ``k`` of the line rows measures endpoint ``k % 2``
+    (start, end) of its observation.
 
     Attributes
     ----------
     points_w, stereo_px : (N, 3) the points' world positions [m] and observations [px].
     point_weight : (N, 3) ``1 / sigma`` of each point's rows.
-    line_rows : the 2 (Mv + Mh) whitened line rows.
+    line_rows : the 4 Mv + 2 Mh whitened line rows.
     n_vertical, n_horizontal : line observations Mv, Mh in each line term.
     """
 
@@ -168,7 +177,7 @@ class WhitenedRows:
         cls, points: PointObservations, vertical_lines: LineObservations, horizontal_lines: LineObservations
     ) -> "WhitenedRows":
         """The rows of the points and of the two line terms of the given lines."""
-        vertical_rows = whitened_line_rows(line_vertical_rows, vertical_lines)
+        vertical_rows = stereo_vertical_rows(vertical_lines)
         horizontal_rows = whitened_line_rows(line_horizontal_rows, horizontal_lines)
         monocular = np.isnan(points.stereo_px[:, 2])
         point_weight = 1.0 / point_row_sigmas(points.sigma_px)
@@ -190,20 +199,20 @@ class WhitenedRows:
         ``masks.lines`` selects vertical terms, ``masks.line_horizontal`` horizontal ones.
         """
         return np.concatenate(
-            [np.repeat(masks.points, 3), np.repeat(masks.lines, 2), np.repeat(masks.line_horizontal, 2)]
+            [np.repeat(masks.points, 3), np.repeat(masks.lines, 4), np.repeat(masks.line_horizontal, 2)]
         )
 
     def select(self, row_mask: np.ndarray) -> "WhitenedRows":
         """The rows where ``row_mask`` (K,) is True (a point's or a line term's rows all or none)."""
         point_mask = row_mask[: 3 * len(self.points_w) : 3]
         line_mask = row_mask[3 * len(self.points_w) :]
-        vertical_rows = 2 * self.n_vertical
+        vertical_rows = 4 * self.n_vertical
         return WhitenedRows(
             self.points_w[point_mask],
             self.stereo_px[point_mask],
             self.point_weight[point_mask],
             self.line_rows.select(line_mask),
-            int(np.sum(line_mask[:vertical_rows])) // 2,
+            int(np.sum(line_mask[:vertical_rows])) // 4,
             int(np.sum(line_mask[vertical_rows:])) // 2,
         )
 
@@ -212,12 +221,22 @@ class WhitenedRows:
         """(N,) bool, the point observations with a ``u_right`` (3 dof; the others have 2)."""
         return self.point_weight[:, 2] > 0.0
 
+    @property
+    def line_is_stereo(self) -> np.ndarray:
+        """(Mv,) bool, the vertical terms measured in both images (4 dof; the others have 2)."""
+        right_rows = self.line_rows.axes[: 4 * self.n_vertical].reshape(-1, 4, 2)[:, 2:]
+        return np.any(right_rows != 0.0, axis=(1, 2))
+
+    def line_inliers(self, vertical_chi2: np.ndarray, chi2_stereo: float, chi2_left: float) -> np.ndarray:
+        """(Mv,) bool, the vertical terms whose chi2 passes the bound of their dof (stereo 4, left only 2)."""
+        return vertical_chi2 <= np.where(self.line_is_stereo, chi2_stereo, chi2_left)
+
     def point_inliers(self, point_chi2: np.ndarray, chi2_stereo: float, chi2_monocular: float) -> np.ndarray:
         """(N,) bool, the points whose chi2 (N,) passes the bound of their dof (stereo 3, monocular 2)."""
         return point_chi2 <= np.where(self.point_is_stereo, chi2_stereo, chi2_monocular)
 
     def with_landmarks(self, points_w: np.ndarray, line_endpoints_w: np.ndarray) -> "WhitenedRows":
-        """The same rows measuring other landmarks: points (N, 3) and one endpoint per line row (2 (Mv + Mh), 3)."""
+        """The same rows measuring other landmarks: points (N, 3) and one endpoint per line row (4 Mv + 2 Mh, 3)."""
         line_rows = dataclasses.replace(self.line_rows, endpoints_w=line_endpoints_w)
         return dataclasses.replace(self, points_w=points_w, line_rows=line_rows)
 
@@ -225,7 +244,7 @@ class WhitenedRows:
         self, camera: StereoCamera, point_T_c_w: np.ndarray, line_T_c_w: np.ndarray, min_depth: float
     ) -> RowEvaluation:
         """All rows at their poses: one ``T_c_w`` (4, 4) for all points / line rows, or one per
-        point (N, 4, 4) and per line row (2 (Mv + Mh), 4, 4)."""
+        point (N, 4, 4) and per line row (4 Mv + 2 Mh, 4, 4)."""
         point = point_reprojection_error(camera, point_T_c_w, self.points_w, self.stereo_px, min_depth)
         line = line_row_errors(camera, line_T_c_w, self.line_rows, min_depth)
         return RowEvaluation(
@@ -245,16 +264,16 @@ class WhitenedRows:
         return whitened
 
     def chi2(self, evaluation: RowEvaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Squared whitened norm of every point (N,), vertical term (Mv,) and horizontal term (Mh,).
+        """Squared whitened norm of every point (N,), vertical term (Mv,, both images) and horizontal term (Mh,).
 
         ``inf`` where a row's landmark does not project (depth ``<= min_depth``).
         """
         squares = np.where(evaluation.valid, evaluation.residual**2, np.inf)
         point_end = 3 * len(self.points_w)
-        vertical_end = point_end + 2 * self.n_vertical
+        vertical_end = point_end + 4 * self.n_vertical
         return (
             squares[:point_end].reshape(-1, 3).sum(axis=1),
-            squares[point_end:vertical_end].reshape(-1, 2).sum(axis=1),
+            squares[point_end:vertical_end].reshape(-1, 4).sum(axis=1),
             squares[vertical_end:].reshape(-1, 2).sum(axis=1),
         )
 
@@ -272,3 +291,34 @@ def whitened_line_rows(
     """The rows of one line term (`line_vertical_rows` or `line_horizontal_rows`) divided by their sigma."""
     rows = rows_of(lines.start_w, lines.end_w, lines.start_px, lines.end_px)
     return rows.scaled(np.repeat(1.0 / lines.sigma_px, 2))
+
+
+def stereo_vertical_rows(lines: LineObservations) -> LineErrorRows:
+    """The 4M whitened vertical rows of M observations: left start, left end, right start, right end.
+
+    Where the right segment is unknown its two rows are zero (they weigh nothing).
+    """
+    n = len(lines.sigma_px)
+    left = whitened_line_rows(line_vertical_rows, lines)
+    no_right = np.full((n, 2), np.nan)
+    right_start = no_right if lines.right_start_px is None else lines.right_start_px
+    right_end = no_right if lines.right_end_px is None else lines.right_end_px
+    known = np.all(np.isfinite(right_start), axis=1) & np.all(np.isfinite(right_end), axis=1)
+    right_start = np.where(known[:, None], right_start, [0.0, 0.0])
+    right_end = np.where(known[:, None], right_end, [0.0, 1.0])  # any segment: the rows are zeroed
+    right = line_vertical_rows(lines.start_w, lines.end_w, right_start, right_end, right=True)
+    right = right.scaled(np.repeat(known / lines.sigma_px, 2))
+    return LineErrorRows(
+        endpoints_w=_pairs_side_by_side(left.endpoints_w, right.endpoints_w),
+        axes=_pairs_side_by_side(left.axes, right.axes),
+        offsets=_pairs_side_by_side(left.offsets, right.offsets),
+        right=_pairs_side_by_side(left.right, right.right),
+    )
+
+
+def _pairs_side_by_side(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Rows (2M, ...) of two row sets, each in pairs per observation, as (4M, ...): left pair, right pair."""
+    n = len(left) // 2
+    return np.stack([left.reshape(n, 2, *left.shape[1:]), right.reshape(n, 2, *right.shape[1:])], axis=1).reshape(
+        4 * n, *left.shape[1:]
+    )

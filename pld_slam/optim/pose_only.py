@@ -48,8 +48,9 @@ meets the clamped-depth wall of `point_reprojection`.
 
 Failure rule. A solve is not attempted, and the initial pose comes back with a failure
 status, when the included observations that project give fewer than
-``min_residuals`` scalar residuals (default 12, twice the pose's 6 dof, so a fit has the
-redundancy to expose one bad observation), or when their whitened Jacobian at the
+``min_residuals`` informative scalar residuals (rows of zero weight, such as the
+disparity row of a point without a stereo match, do not count; default 12, twice the
+pose's 6 dof, so a fit has the redundancy to expose one bad observation), or when their whitened Jacobian at the
 initial pose is rank deficient (smallest singular value below ``rank_tolerance`` times
 the largest: e.g. points all on one 3D line leave the rotation about it free). The rank
 test catches exact degeneracy only: lines parallel in space with only vertical errors
@@ -75,7 +76,7 @@ from pld_slam.optim.observations import (
     WhitenedRows,
 )
 from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, HUBER_SCALE, huber_without_curvature
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF, HUBER_SCALE, huber_without_curvature
 
 _STOPPING_TOLERANCES = dict(ftol=1e-5, xtol=1e-8, gtol=1e-8)
 """`least_squares` stopping rule: scipy's defaults but ``ftol``, the relative cost decrease of
@@ -94,8 +95,9 @@ class PoseOnlyOptions:
     ----------
     use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
     huber_scale : Huber ``f_scale`` [whitened units] of the robust rounds.
-    chi2_point, chi2_monocular_point, chi2_line : chi-square inlier thresholds of a stereo
-        point (3 dof), a point seen in the left image only (2 dof) and a line term (2 dof).
+    chi2_point, chi2_monocular_point, chi2_line, chi2_stereo_line : chi-square inlier
+        thresholds of a stereo point (3 dof), a point seen in the left image only (2 dof), a
+        line term in one image (2 dof) and a vertical term in both images (4 dof).
     rounds, robust_rounds : solves of `optimize_pose_rejecting_outliers`, and how many of
         the first use the Huber loss.
     max_nfev : residual evaluations allowed per solve.
@@ -110,6 +112,7 @@ class PoseOnlyOptions:
     chi2_point: float = CHI2_95_3DOF
     chi2_monocular_point: float = CHI2_95_2DOF
     chi2_line: float = CHI2_95_2DOF
+    chi2_stereo_line: float = CHI2_95_4DOF
     rounds: int = 4
     robust_rounds: int = 3
     max_nfev: int = 100
@@ -353,9 +356,10 @@ def _used_terms(lines: LineObservations, options: PoseOnlyOptions, include: Obse
 def _check_solvable(problem: _PoseProblem, options: PoseOnlyOptions) -> PoseOnlyStatus | None:
     """The failure status of a problem that must not be solved (module docstring), else None."""
     x0 = np.zeros(6)
-    if len(problem.residuals(x0)) < options.min_residuals:
+    jacobian = problem.jacobian(x0)
+    if np.count_nonzero(np.any(jacobian != 0.0, axis=1)) < options.min_residuals:
         return PoseOnlyStatus.TOO_FEW_OBSERVATIONS
-    if _relative_smallest_singular_value(problem.jacobian(x0)) <= options.rank_tolerance:
+    if _relative_smallest_singular_value(jacobian) <= options.rank_tolerance:
         return PoseOnlyStatus.DEGENERATE
     return None
 
@@ -405,7 +409,11 @@ def _result_at(
 ) -> PoseOnlyResult:
     """The result at ``T_c_w``: chi2 of every observation in ``evaluation`` (of ``every_row`` there) and the inliers."""
     point_chi2, vertical_chi2, horizontal_chi2 = every_row.chi2(evaluation)
-    line_inliers = vertical_chi2 <= options.chi2_line if options.use_line_vertical else np.isfinite(vertical_chi2)
+    line_inliers = (
+        every_row.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
+        if options.use_line_vertical
+        else np.isfinite(vertical_chi2)
+    )
     inliers = ObservationMasks(
         points=every_row.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
         lines=line_inliers,

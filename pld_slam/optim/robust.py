@@ -10,6 +10,8 @@ CHI2_95_2DOF = 5.991
 """95% quantile of the chi-square distribution with 2 dof: the test of a line term."""
 CHI2_95_3DOF = 7.815
 """95% quantile of the chi-square distribution with 3 dof: the test of a stereo point."""
+CHI2_95_4DOF = 9.488
+"""95% quantile of the chi-square distribution with 4 dof: the test of a line's vertical term in both images."""
 HUBER_SCALE = float(np.sqrt(3.841))
 """Default Huber scale [whitened units]: sqrt of the 1-dof 95% chi-square quantile."""
 

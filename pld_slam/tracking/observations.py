@@ -32,13 +32,14 @@ def point_observations(
 def line_observations(
     camera: StereoCamera, endpoints_3d: np.ndarray, current: StereoLines, current_index: np.ndarray, config: Config
 ) -> LineObservations:
-    """3D segments (K, 2, 3), start then end, observed as current left-image lines ``current_index`` (K,).
+    """3D segments (K, 2, 3), start then end, observed as current stereo lines ``current_index`` (K,).
 
     The horizontal error is used only where both detected endpoints lie
     ``tracking.border_margin_px`` inside the image (paper: a segment cut by the border has
     no reliable endpoint).
     """
     detected = current.endpoints[current_index]
+    right = current.right_endpoints[current_index]
     start_px, end_px = detected[:, :2], detected[:, 2:]
     return LineObservations(
         start_w=endpoints_3d[:, 0],
@@ -47,4 +48,6 @@ def line_observations(
         end_px=end_px,
         sigma_px=np.full(len(current_index), config.tracking.line_sigma_px),
         horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
+        right_start_px=right[:, :2],
+        right_end_px=right[:, 2:],
     )
