@@ -9,11 +9,11 @@ Runs the pipeline (as ``pld-slam run``) on every real extract found in ``$PLD_SL
 """
 
 import argparse
-import os
 import tempfile
 from pathlib import Path
 
 import pandas as pd
+from extracts import existing_extracts
 
 from pld_slam.datasets import open_sequence
 from pld_slam.eval.run_summary import summarise_run
@@ -21,13 +21,6 @@ from pld_slam.run_config import load_run_config
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 
-REPO = Path(__file__).resolve().parents[1]
-REAL_EXTRACTS = (
-    "kitti_odometry/sequences/06",
-    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync",
-    "euroc/V1_01_easy_static",
-    "euroc/V1_01_easy_flight",
-)
 STAGE_COLUMNS = ("frontend", "matching", "filters", "pose", "dynamic", "total")
 
 
@@ -53,16 +46,9 @@ def run_row(folder: Path, variant: str, overrides: tuple[str, ...] = ()) -> dict
     return row
 
 
-def real_rows(data_dir: Path) -> list[dict]:
-    """Rows for the real extracts present in ``data_dir`` (missing ones are reported and skipped)."""
-    rows = []
-    for relative in REAL_EXTRACTS:
-        folder = data_dir / relative
-        if not folder.is_dir():
-            print(f"skipped {folder}: not found (set PLD_SLAM_DATA)")
-            continue
-        rows.append(run_row(folder, "default"))
-    return rows
+def real_rows() -> list[dict]:
+    """Rows for the real extracts found (missing ones are reported and skipped)."""
+    return [run_row(folder, "default") for folder in existing_extracts()]
 
 
 def synthetic_rows(out: Path, n_frames: int) -> list[dict]:
@@ -81,8 +67,7 @@ def main() -> None:
     parser.add_argument("--frames-synthetic", type=int, default=100)
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "pld_slam_bench")
     args = parser.parse_args()
-    data_dir = Path(os.environ.get("PLD_SLAM_DATA", REPO.parent / "shared" / "data"))
-    rows = real_rows(data_dir) + synthetic_rows(args.out, args.frames_synthetic)
+    rows = real_rows() + synthetic_rows(args.out, args.frames_synthetic)
     table = pd.DataFrame(rows).round({"ATE [m]": 4, "RPE t [m]": 4, "RPE R [deg]": 4, "RTF": 2})
     table = table.round({f"{stage} ms": 1 for stage in STAGE_COLUMNS})
     print(table.to_string(index=False))

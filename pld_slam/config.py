@@ -199,25 +199,20 @@ class KeyframesConfig:
     ggs_gain: float = _param(
         0.4, "GGS_th = GGS_pKF + gain * (GGS_pKF+1 - GGS_ppKF+1) (paper: 0.4)", 0.0
     )
+    ggs_initial_steps: float = _param(
+        2.0, "the first GGS_th, in GGS changes of one frame after the first keyframe (the paper leaves the start "
+        "open)", 0.0
+    )
     tracked_ratio: float = _param(
         0.9, "tracked_ratio policy: a keyframe when the frame tracks fewer than this share of its reference "
         "keyframe's landmarks (ORB-SLAM2: 0.9)", 0.0, 1.0
     )
     min_tracked_ratio: float = _param(
-        0.25, "safety, both policies: a keyframe when the frame tracks fewer than this share of its reference "
-        "keyframe's landmarks (ORB-SLAM2: 0.25)", 0.0, 1.0
+        0.5, "safety, both policies: a keyframe when the frame tracks fewer than this share of its reference "
+        "keyframe's landmarks (ORB-SLAM2: 0.25 emergency, 0.75 main)", 0.0, 1.0
     )
     max_frames_between: int = _param(
         10, "safety, both policies: a keyframe at the latest after this many frames (ORB-SLAM2: one second)", 1
-    )
-    close_depth_baselines: float = _param(
-        40.0, "safety, both policies: stereo points nearer than this many baselines are close (ORB-SLAM2: 35-40)", 0.0
-    )
-    min_tracked_close: int = _param(
-        100, "... a keyframe when the frame tracks fewer close map points than this (ORB-SLAM2: 100)", 0
-    )
-    min_new_close: int = _param(
-        70, "... and more than this many close stereo points have no map point (ORB-SLAM2: 70)", 0
     )
 
 
@@ -248,8 +243,9 @@ class MappingConfig:
         1.047, "a landmark seen more than this angle [rad] away from its mean viewing direction is not searched "
         "(ORB-SLAM2: 60 deg)", 0.0, 3.142
     )
-    min_observers: int = _param(
-        3, "a landmark is culled when two keyframes after its creation fewer keyframes than this see it", 1
+    min_observation_weight: int = _param(
+        4, "a landmark is culled when, two keyframes after its creation, its observations weigh less than this "
+        "(a stereo observation 2, a left-image-only one 1; ORB-SLAM2 stereo: more than 3)", 1
     )
     min_found_ratio: float = _param(
         0.25, "a new landmark is culled when matched in fewer than this share of the frames that should see it",

@@ -1,5 +1,7 @@
 """Line vertical and horizontal errors: constructed cases, sign conventions and Jacobians."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from finite_differences import (
@@ -13,12 +15,16 @@ from finite_differences import (
 
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.optim.line_reprojection import (
+    LineErrorRows,
     detected_line_coefficients,
     detected_line_directions,
     endpoints_away_from_border,
     line_horizontal_error,
+    line_row_errors,
     line_vertical_error,
+    line_vertical_rows,
 )
+from pld_slam.optim.observations import LineObservations, stereo_vertical_rows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
 
 LINE_ERRORS = [line_vertical_error, line_horizontal_error]
@@ -160,3 +166,137 @@ def test_endpoints_away_from_border_needs_both_endpoints_inside_the_margin():
     far_corner = np.array([[CAMERA.width - 11.0, CAMERA.height - 11.0]])
     starts, ends = np.vstack([inside, near_left, inside]), np.vstack([far_corner, inside, near_bottom])
     assert endpoints_away_from_border(CAMERA, starts, ends, margin_px=10.0).tolist() == [True, False, False]
+
+
+# The right image: rows measuring the right-camera projection u_right = u_left - fx * baseline / z.
+
+
+def right_pixels(points_c: np.ndarray) -> np.ndarray:
+    """Right-image pixels (N, 2) of camera-frame points (N, 3), written out from the stereo geometry."""
+    left = CAMERA.project(points_c)
+    return np.column_stack([left[:, 0] - CAMERA.fx * CAMERA.baseline / points_c[:, 2], left[:, 1]])
+
+
+def random_stereo_rows(rng: np.random.Generator, n: int):
+    """A pose and the 4n vertical rows of n segments seen in both images (left rows, then right rows),
+    the detections 3 px off their projections."""
+    T_c_w, start_w, end_w, start_px, end_px = random_observed_segments(rng, n)
+    right_start_px = right_pixels(transform_points(T_c_w, start_w)) + rng.normal(0.0, 3.0, (n, 2))
+    right_end_px = right_pixels(transform_points(T_c_w, end_w)) + rng.normal(0.0, 3.0, (n, 2))
+    rows = LineErrorRows.concatenate(
+        [
+            line_vertical_rows(start_w, end_w, start_px, end_px),
+            line_vertical_rows(start_w, end_w, right_start_px, right_end_px, right=True),
+        ]
+    )
+    return T_c_w, rows
+
+
+def test_right_rows_are_flagged_right_and_left_rows_are_not():
+    T_c_w, rows = random_stereo_rows(np.random.default_rng(20), 10)
+    assert rows.right.tolist() == [False] * 20 + [True] * 20
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_pose_jacobian_of_left_and_right_rows_matches_central_differences(seed):
+    T_c_w, rows = random_stereo_rows(np.random.default_rng(60 + seed), 30)
+    numeric = pose_jacobian_by_central_differences(lambda T: line_row_errors(CAMERA, T, rows).residual, T_c_w)
+    assert_jacobian_matches(numeric, line_row_errors(CAMERA, T_c_w, rows).jac_pose)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_endpoint_jacobian_of_left_and_right_rows_matches_central_differences(seed):
+    T_c_w, rows = random_stereo_rows(np.random.default_rng(70 + seed), 30)
+    numeric = point_jacobian_by_central_differences(
+        lambda P: line_row_errors(CAMERA, T_c_w, dataclasses.replace(rows, endpoints_w=P)).residual, rows.endpoints_w
+    )
+    assert_jacobian_matches(numeric, line_row_errors(CAMERA, T_c_w, rows).jac_endpoint)
+
+
+def test_jacobians_of_whitened_right_rows_at_one_pose_per_row_match_central_differences():
+    rng = np.random.default_rng(80)
+    T_c_w, rows = random_stereo_rows(rng, 12)
+    rows = rows.scaled(rng.uniform(0.5, 2.0, len(rows.offsets)))
+    poses = np.repeat(T_c_w[None], len(rows.offsets), axis=0)
+    errors = line_row_errors(CAMERA, poses, rows)
+    numeric_pose = pose_jacobian_by_central_differences(
+        lambda T: line_row_errors(CAMERA, np.repeat(T[None], len(rows.offsets), axis=0), rows).residual, T_c_w
+    )
+    numeric_endpoint = point_jacobian_by_central_differences(
+        lambda P: line_row_errors(CAMERA, poses, dataclasses.replace(rows, endpoints_w=P)).residual, rows.endpoints_w
+    )
+    assert_jacobian_matches(numeric_pose, errors.jac_pose)
+    assert_jacobian_matches(numeric_endpoint, errors.jac_endpoint)
+
+
+def test_a_segment_projected_exactly_into_the_right_camera_has_zero_right_vertical_error():
+    rng = np.random.default_rng(21)
+    T_c_w = random_pose(rng)
+    start_w, end_w = random_points_in_view(rng, T_c_w, 20), random_points_in_view(rng, T_c_w, 20)
+    right_start_px = right_pixels(transform_points(T_c_w, start_w))
+    right_end_px = right_pixels(transform_points(T_c_w, end_w))
+    right = line_vertical_rows(start_w, end_w, right_start_px, right_end_px, right=True)
+    as_left = line_vertical_rows(start_w, end_w, right_start_px, right_end_px)
+    assert np.allclose(line_row_errors(CAMERA, T_c_w, right).residual, 0.0, atol=1e-8)
+    # the same detections read as left-image segments miss the left projections by the disparity
+    assert np.all(np.abs(line_row_errors(CAMERA, T_c_w, as_left).residual) > 1e-3)
+
+
+def test_right_vertical_error_is_the_signed_pixel_distance_in_the_right_image():
+    # a vertical right-image segment at u = 500 travelling down (+v): its right side is -u
+    right_start_px, right_end_px = np.array([[500.0, 100.0]]), np.array([[500.0, 300.0]])
+    depth = 10.0
+    disparity = CAMERA.fx * CAMERA.baseline / depth
+    P = points_at_pixels([[503.0 + disparity, 150.0]], depth)  # right projection 3 px right of the segment
+    Q = points_at_pixels([[498.0 + disparity, 250.0]], depth)  # 2 px left of it
+    rows = line_vertical_rows(P, Q, right_start_px, right_end_px, right=True)
+    assert np.allclose(line_row_errors(CAMERA, np.eye(4), rows).residual, [-3.0, 2.0])
+
+
+def test_stereo_vertical_rows_weigh_nothing_in_the_right_image_where_the_right_segment_is_unknown():
+    rng = np.random.default_rng(22)
+    T_c_w, start_w, end_w, start_px, end_px = random_observed_segments(rng, 6)
+    right_start_px = right_pixels(transform_points(T_c_w, start_w)) + rng.normal(0.0, 3.0, (6, 2))
+    right_end_px = right_pixels(transform_points(T_c_w, end_w)) + rng.normal(0.0, 3.0, (6, 2))
+    right_start_px[1] = np.nan  # unknown: both points NaN
+    right_start_px[3, 0] = np.nan  # one coordinate of one point is enough to make it unknown
+    right_end_px[4, 1] = np.nan
+    sigma_px = rng.uniform(0.5, 2.0, 6)
+    lines = LineObservations(
+        start_w, end_w, start_px, end_px, sigma_px, np.ones(6, dtype=bool), right_start_px, right_end_px
+    )
+    known = np.array([True, False, True, False, False, True])
+
+    rows = stereo_vertical_rows(lines)
+    errors = line_row_errors(CAMERA, T_c_w, rows)
+
+    per_observation = rows.axes.reshape(6, 4, 2)
+    assert rows.right.reshape(6, 4).tolist() == [[False, False, True, True]] * 6
+    left = line_vertical_rows(start_w, end_w, start_px, end_px).scaled(np.repeat(1.0 / sigma_px, 2))
+    assert np.allclose(per_observation[:, :2].reshape(-1, 2), left.axes)
+    assert np.allclose(rows.offsets.reshape(6, 4)[:, :2].ravel(), left.offsets)
+    right = line_vertical_rows(
+        start_w[known], end_w[known], right_start_px[known], right_end_px[known], right=True
+    ).scaled(np.repeat(1.0 / sigma_px[known], 2))
+    assert np.allclose(per_observation[known, 2:].reshape(-1, 2), right.axes)
+    assert np.allclose(rows.offsets.reshape(6, 4)[known, 2:].ravel(), right.offsets)
+    unknown_rows = np.zeros((6, 4), dtype=bool)
+    unknown_rows[~known, 2:] = True
+    unknown_rows = unknown_rows.ravel()
+    assert np.all(rows.axes[unknown_rows] == 0.0) and np.all(rows.offsets[unknown_rows] == 0.0)
+    assert np.all(errors.residual[unknown_rows] == 0.0)
+    assert np.all(errors.jac_pose[unknown_rows] == 0.0) and np.all(errors.jac_endpoint[unknown_rows] == 0.0)
+    assert np.all(np.abs(errors.residual[~unknown_rows]) > 0.0)
+
+
+def test_stereo_vertical_rows_without_any_right_segment_weigh_nothing_in_the_right_image():
+    rng = np.random.default_rng(23)
+    T_c_w, start_w, end_w, start_px, end_px = random_observed_segments(rng, 5)
+    lines = LineObservations(start_w, end_w, start_px, end_px, np.ones(5), np.ones(5, dtype=bool))
+    rows = stereo_vertical_rows(lines)
+    right_rows = rows.right
+    assert right_rows.sum() == 10
+    assert np.all(rows.axes[right_rows] == 0.0) and np.all(rows.offsets[right_rows] == 0.0)
+    assert np.all(line_row_errors(CAMERA, T_c_w, rows).residual[right_rows] == 0.0)
+    left = line_vertical_rows(start_w, end_w, start_px, end_px)
+    assert np.allclose(rows.axes[~right_rows], left.axes) and np.allclose(rows.offsets[~right_rows], left.offsets)

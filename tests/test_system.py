@@ -110,13 +110,14 @@ def test_a_frame_pose_follows_later_corrections_of_its_reference_keyframe(full_r
     try:
         keyframe.T_c_w = original @ correction
         after = full_run.trajectory().poses
+        corrected_T_w_k = keyframe.T_w_c
     finally:
         keyframe.T_c_w = original
     moved = ~np.all(np.isclose(before, after, atol=1e-12), axis=(1, 2))
     following = np.array([r.reference_keyframe == keyframe.id for r in records])
     assert np.array_equal(moved, following)
-    # The frame keeps its pose relative to the keyframe.
-    relative = inverse(after[frame.index]) @ keyframe.T_w_c
+    # The frame keeps its pose relative to the corrected keyframe.
+    relative = inverse(after[frame.index]) @ corrected_T_w_k
     np.testing.assert_allclose(relative, frame.T_c_r, atol=1e-9)
 
 

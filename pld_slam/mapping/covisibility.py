@@ -8,13 +8,18 @@ neighbours after a fast turn; every link, however weak, stays known (`shared`), 
 local BA needs every keyframe that sees its landmarks, not only the neighbours.
 
 The spanning tree (ORB-SLAM2) connects every keyframe to the keyframe it shared the most
-landmarks with when it was first linked: its parent. Loop closure optimises poses along
+landmarks with when it was first linked, among those already in the tree: its parent. (A
+keyframe that shared nothing when inserted, after a fast turn, is linked later; taking
+its strongest link then, whatever it is, could pick a keyframe that had since taken it
+as parent: a cycle off the tree.) Loop closure optimises poses along
 it. When a keyframe is culled, its children are re-attached one by one, each to the
 strongest-linked keyframe among its old parent and the children already re-attached,
 and otherwise to its old parent.
 
 Ties in weight go to the lower keyframe id, so the graph is the same on every run.
 """
+
+from collections.abc import Iterable
 
 
 class CovisibilityGraph:
@@ -49,8 +54,37 @@ class CovisibilityGraph:
         for other, count in shared.items():
             self._shared[other][keyframe] = count
         self._shared[keyframe] = shared
-        if self.parent[keyframe] is None and shared and keyframe != self.root:
-            self._attach(keyframe, _strongest(shared))
+        if self.parent[keyframe] is None and keyframe != self.root:
+            rooted = {other: count for other, count in shared.items() if self.reaches_root(other)}
+            if rooted:
+                self._attach(keyframe, _strongest(rooted))
+
+    def change_shared(self, keyframe: int, others: Iterable[int], delta: int) -> None:
+        """Add ``delta`` to the landmarks ``keyframe`` shares with each of ``others`` (both directions).
+
+        A link that falls to zero is dropped. The spanning tree is not changed.
+        """
+        links = self._shared[keyframe]
+        for other in others:
+            if other == keyframe:
+                continue
+            count = links.get(other, 0) + delta
+            if count > 0:
+                links[other] = self._shared[other][keyframe] = count
+            else:
+                links.pop(other, None)
+                self._shared[other].pop(keyframe, None)
+
+    def unlink_all(self, keyframes: list[int]) -> None:
+        """Lower by one the link of every pair of ``keyframes``: a landmark they all observed is gone."""
+        for index, keyframe in enumerate(keyframes):
+            self.change_shared(keyframe, keyframes[index + 1 :], -1)
+
+    def reaches_root(self, keyframe: int) -> bool:
+        """Whether following the spanning-tree parents from ``keyframe`` ends at the root."""
+        while self.parent[keyframe] is not None:
+            keyframe = self.parent[keyframe]
+        return keyframe == self.root
 
     @property
     def root(self) -> int:

@@ -14,9 +14,10 @@ index}`` (`Landmarks.observers`). The map (`pld_slam.mapping.map`) changes both 
 Lines are 3D segments stored by their two endpoints, start ``P`` and end ``Q`` (6 numbers).
 Minimal line parameterisations (Plücker coordinates with an orthonormal update, 4 dof)
 describe an infinite line, but the paper's horizontal error measures the endpoints, and
-every residual of `pld_slam.optim.line_reprojection` is written on them. The two
-directions the endpoints may slide along the line without changing a vertical error are
-left free; BA's trust region keeps them where they are unless a horizontal error pins them.
+every residual of `pld_slam.optim.line_reprojection` is written on them. Bundle
+adjustment moves an endpoint only across its line unless a horizontal error measures it
+(`pld_slam.optim.bundle_adjustment._held_directions`), so a line keeps the 4 dof of an
+infinite line and its endpoints their places along it.
 """
 
 from typing import ClassVar
@@ -177,6 +178,11 @@ class LineLandmarks(Landmarks):
     DYNAMIC_FIELD = "line_dynamic"
 
 
+_OCTAVE_ROUNDING = 1e-9
+"""Taken off a log ratio before rounding it up, so that a point at the distance it was seen
+from is predicted at the octave it was seen at (``log(1.2**2) / log(1.2)`` is 2.0000000000000004)."""
+
+
 def predicted_octaves(
     max_distance: np.ndarray, distance: np.ndarray, scale_factor: float, n_levels: int
 ) -> np.ndarray:
@@ -186,5 +192,5 @@ def predicted_octaves(
     clipped to ``[0, n_levels - 1]``.
     """
     ratio = np.maximum(max_distance / np.maximum(distance, 1e-9), 1e-9)
-    octave = np.ceil(np.log(ratio) / np.log(scale_factor))
+    octave = np.ceil(np.log(ratio) / np.log(scale_factor) - _OCTAVE_ROUNDING)
     return np.clip(octave, 0, n_levels - 1).astype(np.int64)

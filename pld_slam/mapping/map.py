@@ -4,7 +4,11 @@ Local mapping (`pld_slam.mapping.local_mapping`) is the only writer; tracking re
 through `local_map` and `pld_slam.tracking.local_map`. Every change goes through a few
 methods that keep the two copies of an observation in step (a keyframe's landmark id per
 feature, a landmark's ``{keyframe: feature}``, see `pld_slam.mapping.landmarks`), the
-observer counts, and the covisibility links.
+observer counts, and the covisibility links: each observation added or removed changes
+the keyframe's link to every other observer of the landmark by one, so the links always
+count the landmarks two keyframes share (ORB-SLAM2 recounts them only at some steps).
+`update_links` recounts a keyframe's links from scratch and gives a new keyframe its
+spanning-tree parent.
 
 A landmark left without observers dies (``alive`` False). A culled keyframe leaves its
 pose relative to its spanning-tree parent behind (`culled_keyframe_pose`), so that frames
@@ -16,6 +20,7 @@ from collections import Counter
 import numpy as np
 
 from pld_slam.frontend.descriptors import hamming_distances
+from pld_slam.frontend.ggs import GgsDatabase
 from pld_slam.geometry.se3 import inverse
 from pld_slam.mapping.covisibility import CovisibilityGraph
 from pld_slam.mapping.keyframe import KeyFrame
@@ -31,6 +36,8 @@ class Map:
         self.points = PointLandmarks()
         self.lines = LineLandmarks()
         self.covisibility = CovisibilityGraph(covisibility_min_shared)
+        self.ggs = GgsDatabase()
+        """The GGS descriptors of the live keyframes that have one (relocalisation and loop detection query it)."""
         self._next_keyframe_id = 0
         self._culled: dict[int, tuple[int, np.ndarray]] = {}
         """Culled keyframe id -> (its parent's id, ``T_c_p`` from the parent camera to it)."""
@@ -55,6 +62,8 @@ class Map:
         self._next_keyframe_id += 1
         self.keyframes[keyframe.id] = keyframe
         self.covisibility.add_keyframe(keyframe.id)
+        if keyframe.ggs is not None:
+            self.ggs.add(keyframe.id, keyframe.ggs)
         for kind in self.kinds:
             ids = getattr(keyframe, kind.IDS_FIELD)
             features = np.flatnonzero(ids >= 0)
@@ -72,11 +81,12 @@ class Map:
         the keyframe already observes through another feature (the first one kept).
         """
         ids = getattr(keyframe, kind.IDS_FIELD)
-        keep = kind.live(landmarks) & (ids[features] < 0)
+        keep = kind.live(landmarks)
         for feature, landmark in zip(features[keep].tolist(), landmarks[keep].tolist()):
             observers = kind.observers[landmark]
-            if keyframe.id in observers:
+            if ids[feature] >= 0 or keyframe.id in observers:
                 continue
+            self.covisibility.change_shared(keyframe.id, observers.keys(), +1)
             observers[keyframe.id] = feature
             ids[feature] = landmark
             kind.n_observers[landmark] += 1
@@ -89,7 +99,9 @@ class Map:
             if landmark < 0:
                 continue
             ids[feature] = -1
-            del kind.observers[landmark][keyframe.id]
+            observers = kind.observers[landmark]
+            del observers[keyframe.id]
+            self.covisibility.change_shared(keyframe.id, observers.keys(), -1)
             kind.n_observers[landmark] -= 1
             if kind.n_observers[landmark] == 0:
                 kind.alive[landmark] = False
@@ -105,8 +117,10 @@ class Map:
     def remove_landmarks(self, kind: Landmarks, landmarks: np.ndarray) -> None:
         """Remove landmarks (K,) and every observation of them."""
         for landmark in landmarks.tolist():
-            for keyframe, feature in kind.observers[landmark].items():
+            observers = kind.observers[landmark]
+            for keyframe, feature in observers.items():
                 getattr(self.keyframes[keyframe], kind.IDS_FIELD)[feature] = -1
+            self.covisibility.unlink_all(list(observers))
             kind.observers[landmark] = {}
             kind.n_observers[landmark] = 0
             kind.alive[landmark] = False
@@ -119,10 +133,13 @@ class Map:
         """
         if old == new:
             return
-        for keyframe_id, feature in list(kind.observers[old].items()):
+        old_observers = list(kind.observers[old].items())
+        self.covisibility.unlink_all([keyframe_id for keyframe_id, _ in old_observers])
+        for keyframe_id, feature in old_observers:
             keyframe = self.keyframes[keyframe_id]
             getattr(keyframe, kind.IDS_FIELD)[feature] = -1
             if keyframe_id not in kind.observers[new]:
+                self.covisibility.change_shared(keyframe_id, kind.observers[new].keys(), +1)
                 kind.observers[new][keyframe_id] = feature
                 getattr(keyframe, kind.IDS_FIELD)[feature] = new
                 kind.n_observers[new] += 1
@@ -156,21 +173,27 @@ class Map:
             ids = getattr(keyframe, kind.IDS_FIELD)
             self.erase_observations(kind, keyframe, np.flatnonzero(ids >= 0))
         self.covisibility.remove_keyframe(keyframe.id)
+        if keyframe.ggs is not None:
+            self.ggs.remove(keyframe.id)
         del self.keyframes[keyframe.id]
 
     def keyframe_T_w_c(self, keyframe_id: int) -> np.ndarray:
-        """(4, 4) pose of a keyframe, live or culled (a culled one follows its parent chain)."""
+        """(4, 4) pose of a keyframe, live or culled (a culled one follows its parent chain).
+
+        ``chain`` is ``T_k_p`` from the live ancestor ``p`` reached to the keyframe ``k`` asked for.
+        """
         chain = np.eye(4)
         while keyframe_id not in self.keyframes:
             keyframe_id, T_c_p = self._culled[keyframe_id]
-            chain = T_c_p @ chain
+            chain = chain @ T_c_p
         return self.keyframes[keyframe_id].T_w_c @ inverse(chain)
 
     def observation_table(self, kind: Landmarks, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every observation of ``landmarks`` (K,): landmark row in ``landmarks``, keyframe id, feature index.
 
-        Three (M,) int64 arrays, grouped by landmark in the order of ``landmarks``, keyframes
-        in insertion order within a group.
+        Three (M,) int64 arrays, grouped by landmark in the order of ``landmarks``, and
+        within a group in the order the observations were made (the creating keyframe
+        first while it observes the landmark; fusion appends the observations it moves).
         """
         rows, keyframes, features = [], [], []
         for row, landmark in enumerate(landmarks.tolist()):
@@ -181,14 +204,29 @@ class Map:
         return (np.array(rows, dtype=np.int64), np.array(keyframes, dtype=np.int64),
                 np.array(features, dtype=np.int64))
 
+    def observation_weights(self, kind: Landmarks, landmarks: np.ndarray) -> np.ndarray:
+        """Weight (K,) of the observations of ``landmarks`` (K,): 2 per stereo observation, 1 per left-image-only one.
+
+        Lines are stereo; a point observation is stereo when its keypoint has a stereo
+        match (it is among the keyframe's first ``n_stereo`` keypoints).
+        """
+        rows, keyframes, features = self.observation_table(kind, landmarks)
+        if isinstance(kind, PointLandmarks):
+            n_stereo = np.array([self.keyframes[k].features.keypoints.n_stereo for k in keyframes.tolist()], dtype=int)
+            weight = np.where(features < n_stereo, 2, 1)
+        else:
+            weight = np.full(len(rows), 2)
+        return np.bincount(rows, weights=weight, minlength=len(landmarks)).astype(np.int64)
+
     def refresh_landmarks(self, kind: Landmarks, landmarks: np.ndarray, scale_factor: float) -> None:
         """Recompute the summaries of landmarks (K,) from their observations (ORB-SLAM2's
         ``ComputeDistinctiveDescriptors`` and ``UpdateNormalAndDepth``).
 
         ``normal``: the mean unit direction from the observing cameras; ``descriptor``: the
         representative one (`representative_descriptors`); for points, ``max_distance``:
-        the distance from the first-listed observer times ``scale_factor**octave`` of its
-        observation (`pld_slam.mapping.landmarks.PointLandmarks`).
+        the distance from the earliest observer (`observation_table`) times
+        ``scale_factor**octave`` of its observation (ORB-SLAM2 uses the creating keyframe,
+        `pld_slam.mapping.landmarks.PointLandmarks`).
         """
         landmarks = landmarks[kind.n_observers[landmarks] > 0]
         if len(landmarks) == 0:

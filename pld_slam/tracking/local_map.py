@@ -36,6 +36,19 @@ matched in 21 % of the frames that should see it, against 40 % beyond 30 m); wit
 these matches a frame's translation rested on far map points only and drifted by
 decimetres between keyframes.
 
+Landmarks passed on. A reference feature that observes a landmark (the reference is a
+keyframe, or a frame that tracked the map) passes it on through its frame-to-frame match,
+as ORB-SLAM2 tracks the last frame's map points: the current feature observes that
+landmark, whatever the search of the local map found for it. The frame-to-frame match is
+made at a close viewpoint, against the reference's own descriptor, so it keeps finding a
+landmark after its map descriptor, seen from the keyframes, has stopped matching. Without
+it, landmarks were found again too rarely for keyframes a few frames apart to share
+them: on the synthetic street, 77 landmarks tied three keyframes 5 and 10 frames apart,
+and local BA moved the keyframes by 7-10 cm from tracked poses good to 2 cm (a problem
+that weak fits noise). Each landmark and each feature enters the solve once, the landmark
+passed on first; the solve's chi-square test then drops a landmark whose
+association went wrong.
+
 Dynamic features. A feature labelled dynamic (by the detectors, on the reference-frame
 matches) is matched like any other but never enters the pose: the landmark it matched is
 reported (``dynamic_point_ids``) so that local mapping can remove landmarks that keep
@@ -113,16 +126,34 @@ class ReferenceMatches:
     ----------
     points_w : (K, 3) reference stereo points [m]; point_index : (K,) current keypoint of each.
     lines_w : (M, 2, 3) reference segments [m]; line_index : (M,) current line of each.
+    point_landmarks, line_landmarks : (K,), (M,) int64, the live landmark the reference feature
+        observes, ``-1`` for none; where there is one, ``points_w`` / ``lines_w`` hold its
+        position (the match passes the landmark on, module docstring).
     """
 
     points_w: np.ndarray
     point_index: np.ndarray
     lines_w: np.ndarray
     line_index: np.ndarray
+    point_landmarks: np.ndarray
+    line_landmarks: np.ndarray
 
     @classmethod
     def empty(cls) -> "ReferenceMatches":
-        return cls(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 2, 3)), np.zeros(0, dtype=np.int64))
+        no_ids = np.zeros(0, dtype=np.int64)
+        return cls(np.zeros((0, 3)), no_ids, np.zeros((0, 2, 3)), no_ids, no_ids, no_ids)
+
+
+@dataclass(frozen=True)
+class _MapObservations:
+    """Current features (K,) matched to landmarks (K,) at world positions (K, ...): the map side of a solve."""
+
+    current: np.ndarray
+    landmarks: np.ndarray
+    geometry: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.current)
 
 
 @dataclass(frozen=True)
@@ -263,41 +294,69 @@ def track_local_map(
     keypoints = features.keypoints
     point_matches = match_map_points(camera, T_c_w_init, local_map.points, keypoints, config)
     line_matches = match_map_lines(camera, T_c_w_init, local_map.lines, features.lines, config)
-    static_points = _static(point_matches.matches, dynamic_points)
-    static_lines = _static(line_matches.matches, dynamic_lines)
-    extra_points = ~np.isin(reference.point_index, static_points.current)
-    extra_lines = ~np.isin(reference.line_index, static_lines.current)
+    map_points = _map_observations(
+        local_map.points, _static(point_matches.matches, dynamic_points),
+        reference.point_index, reference.point_landmarks, reference.points_w,
+    )
+    map_lines = _map_observations(
+        local_map.lines, _static(line_matches.matches, dynamic_lines),
+        reference.line_index, reference.line_landmarks, reference.lines_w,
+    )
+    extra_points = ~np.isin(reference.point_index, map_points.current)
+    extra_lines = ~np.isin(reference.line_index, map_lines.current)
     solution = optimize_pose_rejecting_outliers(
         camera,
         T_c_w_init,
         points=point_observations(
-            np.concatenate([local_map.points.geometry[static_points.previous], reference.points_w[extra_points]]),
+            np.concatenate([map_points.geometry, reference.points_w[extra_points]]),
             keypoints,
-            np.concatenate([static_points.current, reference.point_index[extra_points]]),
+            np.concatenate([map_points.current, reference.point_index[extra_points]]),
             config.points,
         ),
         lines=line_observations(
             camera,
-            np.concatenate([local_map.lines.geometry[static_lines.previous], reference.lines_w[extra_lines]]),
+            np.concatenate([map_lines.geometry, reference.lines_w[extra_lines]]),
             features.lines,
-            np.concatenate([static_lines.current, reference.line_index[extra_lines]]),
+            np.concatenate([map_lines.current, reference.line_index[extra_lines]]),
             config,
         ),
         options=pose_options,
     )
-    map_point_inliers = solution.inliers.points[: len(static_points)]
-    map_line_inliers = solution.inliers.lines[: len(static_lines)]
     return LocalMapTracking(
         solution=solution,
-        point_ids=_inlier_ids(len(keypoints), static_points, map_point_inliers, local_map.points.ids),
-        line_ids=_inlier_ids(len(features.lines), static_lines, map_line_inliers, local_map.lines.ids),
+        point_ids=_inlier_ids(len(keypoints), map_points, solution.inliers.points[: len(map_points)]),
+        line_ids=_inlier_ids(len(features.lines), map_lines, solution.inliers.lines[: len(map_lines)]),
         visible_point_ids=local_map.points.ids[point_matches.visible],
         visible_line_ids=local_map.lines.ids[line_matches.visible],
         dynamic_point_ids=local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous],
         dynamic_line_ids=local_map.lines.ids[_dynamic(line_matches.matches, dynamic_lines).previous],
-        point_matches=len(static_points),
-        line_matches=len(static_lines),
+        point_matches=len(map_points),
+        line_matches=len(map_lines),
     )
+
+
+def _map_observations(
+    snapshot: LandmarkSnapshot,
+    searched: FrameMatches,
+    reference_index: np.ndarray,
+    reference_landmarks: np.ndarray,
+    reference_geometry: np.ndarray,
+) -> _MapObservations:
+    """The landmarks a frame observes: those passed on by its reference matches, then those the
+    search found (``searched``: snapshot rows to current features) for the other features and
+    landmarks. A landmark and a feature appear once each (module docstring)."""
+    inherited = reference_landmarks >= 0
+    current = np.concatenate([reference_index[inherited], searched.current])
+    landmarks = np.concatenate([reference_landmarks[inherited], snapshot.ids[searched.previous]])
+    geometry = np.concatenate([reference_geometry[inherited], snapshot.geometry[searched.previous]])
+    _, first_of_feature = np.unique(current, return_index=True)
+    keep = np.zeros(len(current), dtype=bool)
+    keep[first_of_feature] = True
+    _, first_of_landmark = np.unique(landmarks, return_index=True)
+    once = np.zeros(len(current), dtype=bool)
+    once[first_of_landmark] = True
+    keep &= once
+    return _MapObservations(current[keep], landmarks[keep], geometry[keep])
 
 
 def _inside_image(camera: StereoCamera, pixels: np.ndarray) -> np.ndarray:
@@ -329,8 +388,8 @@ def _dynamic(matches: FrameMatches, dynamic: np.ndarray) -> FrameMatches:
     return FrameMatches(matches.previous[keep], matches.current[keep])
 
 
-def _inlier_ids(n_features: int, matches: FrameMatches, inliers: np.ndarray, snapshot_ids: np.ndarray) -> np.ndarray:
+def _inlier_ids(n_features: int, observed: _MapObservations, inliers: np.ndarray) -> np.ndarray:
     """(n_features,) int64 landmark id of each feature matched as an inlier, -1 elsewhere."""
     ids = np.full(n_features, -1, dtype=np.int64)
-    ids[matches.current[inliers]] = snapshot_ids[matches.previous[inliers]]
+    ids[observed.current[inliers]] = observed.landmarks[inliers]
     return ids

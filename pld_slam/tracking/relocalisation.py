@@ -31,7 +31,6 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.frontend import LeftKeypoints
 from pld_slam.frontend.descriptors import CandidateMatches, unique_train
-from pld_slam.frontend.ggs import ggs_distances
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.mapping.map import Map
@@ -107,9 +106,8 @@ def pose_without_prior(
 
 def keyframes_by_similarity(world_map: Map, ggs: np.ndarray, limit: int) -> list[int]:
     """The ``limit`` keyframes whose GGS is most similar to ``ggs`` (2, C, B), the most similar first."""
-    ids = np.array(list(world_map.keyframes), dtype=np.int64)
-    if len(ids) == 0:
+    database = world_map.ggs
+    if len(database) == 0:
         return []
-    database = np.stack([world_map.keyframes[k].ggs for k in ids.tolist()])
-    order = np.argsort(ggs_distances(ggs, database), kind="stable")
-    return ids[order[:limit]].tolist()
+    order = np.argsort(database.distances(ggs), kind="stable")
+    return database.ids[order[:limit]].tolist()

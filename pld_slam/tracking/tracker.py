@@ -53,6 +53,7 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
 from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
 from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.pose_only import (
@@ -149,6 +150,23 @@ class _FrameMatches:
 
 
 @dataclass(frozen=True)
+class _LandmarkIds:
+    """The map landmark of each of a frame's stereo points (P,) and lines (L,), ``-1`` for none."""
+
+    points: np.ndarray
+    lines: np.ndarray
+
+    @classmethod
+    def none(cls, features: StereoFeatures) -> "_LandmarkIds":
+        return cls(np.full(len(features.points), -1), np.full(len(features.lines), -1))
+
+    @classmethod
+    def of(cls, features: StereoFeatures, point_ids: np.ndarray, line_ids: np.ndarray) -> "_LandmarkIds":
+        """From ids over all left keypoints (P_all,), stereo points first, and over the lines (L,)."""
+        return cls(point_ids[: len(features.points)].copy(), line_ids.copy())
+
+
+@dataclass(frozen=True)
 class _DynamicIndices:
     """Indices of a frame's points (P,) and lines (L,) found dynamic."""
 
@@ -172,6 +190,7 @@ class Tracker:
             use_line_horizontal=config.lines.horizontal_error,
         )
         self._reference: StereoFeatures | None = None
+        self._reference_landmarks: _LandmarkIds | None = None
         self._T_w_r = np.eye(4)
         self._reference_age = 0
         self._reference_inliers = 0
@@ -242,7 +261,11 @@ class Tracker:
                 map_line_inliers=int(np.count_nonzero(map_tracking.line_ids >= 0)),
             )
         T_w_c, T_c_p = self._advance(T_w_c)
-        self._update_reference(features, T_w_c, tracked, counts, kept, labels, renew=recovered)
+        landmarks = (
+            _LandmarkIds.none(features) if map_tracking is None
+            else _LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
+        )
+        self._update_reference(features, T_w_c, tracked, counts, kept, labels, landmarks, renew=recovered)
         status = _status(tracked, recovered)
         keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
         return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
@@ -293,19 +316,43 @@ class Tracker:
     def _reference_matches(
         self, kept: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels
     ) -> ReferenceMatches:
-        """The inlier, static matches of the reference solve, the reference side in the world frame."""
+        """The inlier, static matches of the reference solve, the reference side in the world frame.
+
+        A reference feature that observes a live landmark passes it on (`ReferenceMatches`):
+        its world side is the landmark's position.
+        """
         if not solution.success:
             return ReferenceMatches.empty()
         reference = self._reference
         points = solution.inliers.points & ~labels.point_dynamic
         lines = solution.inliers.lines & ~labels.line_dynamic
-        segments = reference.lines.endpoints_c[kept.lines.previous[lines]].reshape(-1, 3)
+        previous_points, previous_lines = kept.points.previous[points], kept.lines.previous[lines]
+        segments = reference.lines.endpoints_c[previous_lines].reshape(-1, 3)
+        points_w = transform_points(self._T_w_r, reference.points.points_c[previous_points])
+        lines_w = transform_points(self._T_w_r, segments).reshape(-1, 2, 3)
+        point_landmarks = self._live_reference_landmarks(self._map.points, self._reference_landmarks.points,
+                                                         previous_points, points_w)
+        line_landmarks = self._live_reference_landmarks(self._map.lines, self._reference_landmarks.lines,
+                                                        previous_lines, lines_w)
         return ReferenceMatches(
-            points_w=transform_points(self._T_w_r, reference.points.points_c[kept.points.previous[points]]),
+            points_w=points_w,
             point_index=kept.points.current[points],
-            lines_w=transform_points(self._T_w_r, segments).reshape(-1, 2, 3),
+            lines_w=lines_w,
             line_index=kept.lines.current[lines],
+            point_landmarks=point_landmarks,
+            line_landmarks=line_landmarks,
         )
+
+    @staticmethod
+    def _live_reference_landmarks(
+        kind: Landmarks, reference_ids: np.ndarray, previous: np.ndarray, geometry_w: np.ndarray
+    ) -> np.ndarray:
+        """The live landmark (K,) of reference features ``previous`` (K,), -1 for none; where there is one,
+        its row of ``geometry_w`` (K, ...) becomes the landmark's position (in place)."""
+        ids = reference_ids[previous]
+        live = kind.live(ids)
+        geometry_w[live] = kind.geometry[ids[live]]
+        return np.where(live, ids, -1)
 
     @property
     def reference_keyframe_id(self) -> int | None:
@@ -323,23 +370,19 @@ class Tracker:
         self._local_map = gather_local_map(self._map, keyframe.id, self._config.mapping.tracking_keyframes)
         self._T_w_p = keyframe.T_w_c
         dynamic = _DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
-        self._set_reference(keyframe.features, keyframe.T_w_c, dynamic)
+        landmarks = _LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
+        self._set_reference(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
 
     def _decide_keyframe(self, features: StereoFeatures, map_tracking: LocalMapTracking) -> KeyframeReason | None:
         """Whether the tracked frame becomes a keyframe (`pld_slam.keyframes`)."""
         keyframe = self._reference_keyframe
         self._frames_since_keyframe += 1
         ggs = 0.0 if features.ggs is None else ggs_distance(features.ggs, keyframe.ggs)
-        stereo = features.points
-        close = stereo.disparity > self._camera.fx / self._config.keyframes.close_depth_baselines
-        tracked = map_tracking.point_ids[: len(stereo)] >= 0
         return self._keyframes.decide(KeyframeEvidence(
             frames_since_keyframe=self._frames_since_keyframe,
             ggs_distance=ggs,
             tracked_landmarks=map_tracking.tracked_landmarks,
             reference_landmarks=_established_landmarks(self._map, keyframe),
-            tracked_close=int(np.count_nonzero(close & tracked)),
-            untracked_close=int(np.count_nonzero(close & ~tracked)),
         ))
 
     def _advance(self, T_w_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -360,6 +403,7 @@ class Tracker:
         counts: TrackingCounts,
         kept: _FrameMatches,
         labels: DynamicLabels,
+        landmarks: _LandmarkIds,
         renew: bool = False,
     ) -> None:
         """Record the dynamic features seen, age the reference, and renew it when worn, after a failure,
@@ -373,7 +417,7 @@ class Tracker:
         renew = renew or (self._reference_is_worn(inliers) if tracked else self._can_be_reference(features))
         if renew:
             found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
-            self._set_reference(features, T_w_c, found)
+            self._set_reference(features, T_w_c, found, landmarks)
 
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
@@ -384,12 +428,17 @@ class Tracker:
         return TrackedFrame(self._T_w_p.copy(), self._velocity, TrackingStatus.LOST)
 
     def _set_reference(
-        self, features: StereoFeatures, T_w_c: np.ndarray, dynamic: _DynamicIndices | None = None
+        self,
+        features: StereoFeatures,
+        T_w_c: np.ndarray,
+        dynamic: _DynamicIndices | None = None,
+        landmarks: _LandmarkIds | None = None,
     ) -> None:
         """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
 
         ``dynamic`` lists the frame's features found dynamic: they stay known as dynamic
-        while it is the reference (`dynamic` module docstring).
+        while it is the reference (`dynamic` module docstring). ``landmarks`` are the map
+        landmarks its features observe (none by default): frames matched to it inherit them.
 
         After a failure the reference is the failed frame itself (at its motion-model
         pose) if it has features enough to be tracked against (`_can_be_reference`):
@@ -397,6 +446,7 @@ class Tracker:
         prediction. A frame without them (blank, blinded) keeps the old reference.
         """
         self._reference, self._T_w_r = features, T_w_c
+        self._reference_landmarks = _LandmarkIds.none(features) if landmarks is None else landmarks
         self._reference_age, self._reference_inliers = 0, 0
         self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
         self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)

@@ -1,0 +1,366 @@
+"""`LocalMapping` on hand-made keyframes: landmark creation, recent-landmark and dynamic culling,
+keyframe culling; and the map invariants after a short synthetic run with mapping on.
+
+The keyframes see exact stereo features of a few world points and segments
+(`map_fixtures`), so fusion and local BA have nothing to correct; each test follows
+one step of `pld_slam.mapping.local_mapping`.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from map_fixtures import (
+    CAMERA,
+    check_map_consistency,
+    empty_features,
+    make_keyframe,
+    pose_near_origin,
+    random_descriptors,
+    reaches_root,
+    scene_lines,
+    scene_points,
+    world_features,
+)
+
+from pld_slam.config import Config, load_config
+from pld_slam.datasets import open_sequence
+from pld_slam.geometry.se3 import transform_points
+from pld_slam.mapping.local_mapping import LocalMapping
+from pld_slam.mapping.map import Map
+from pld_slam.synth import write_sequence
+from pld_slam.system import System
+
+N_POINTS, N_LINES = 30, 6
+POINTS_W = scene_points(N_POINTS, seed=1)
+LINES_W = scene_lines(N_LINES, seed=2)
+POINT_DESCRIPTORS = random_descriptors(N_POINTS, seed=3)
+LINE_DESCRIPTORS = random_descriptors(N_LINES, seed=4)
+POSES = [pose_near_origin(seed) for seed in range(10, 20)]
+
+
+def config_with(**mapping) -> Config:
+    """Default configuration with ``mapping`` fields replaced."""
+    config = Config()
+    return dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, **mapping))
+
+
+def local_mapping(config: Config | None = None) -> LocalMapping:
+    config = config or Config()
+    return LocalMapping(Map(config.mapping.covisibility_min_shared), CAMERA, config)
+
+
+def keyframe_seeing(
+    mapping: LocalMapping,
+    points=(),
+    lines=(),
+    tracked_points=None,
+    tracked_lines=None,
+    **labels,
+):
+    """The map's next keyframe, seeing world points ``points`` and segments ``lines`` (indices into
+    POINTS_W / LINES_W) from pose ``POSES[its id]``; ``tracked_*`` gives the
+    landmark tracking matched to each feature (-1: none)."""
+    keyframe_id = mapping.map.next_keyframe_id()
+    T_c_w = POSES[keyframe_id]
+    points, lines = list(points), list(lines)
+    features = world_features(
+        T_c_w, POINTS_W[points].reshape(-1, 3), POINT_DESCRIPTORS[points], LINES_W[lines].reshape(-1, 2, 3),
+        LINE_DESCRIPTORS[lines],
+    )
+    return make_keyframe(keyframe_id, features, T_c_w, tracked_points, tracked_lines, **labels)
+
+
+def empty_keyframe(mapping: LocalMapping):
+    """The map's next keyframe, without a single feature."""
+    keyframe_id = mapping.map.next_keyframe_id()
+    return make_keyframe(keyframe_id, empty_features(), POSES[keyframe_id])
+
+
+def landmark_of(mapping: LocalMapping, keyframe_id: int, point: int) -> int:
+    """The landmark that ``keyframe_id``'s feature of world point ``point`` observes (its features
+    follow the order the keyframe was built with)."""
+    return int(mapping.map.keyframes[keyframe_id].point_ids[point])
+
+
+# --- landmark creation ----------------------------------------------------------------
+
+
+def test_the_first_keyframe_creates_a_landmark_from_every_static_stereo_point_and_line():
+    mapping = local_mapping()
+    features = world_features(
+        POSES[0], POINTS_W[:6], POINT_DESCRIPTORS[:6], LINES_W[:3], LINE_DESCRIPTORS[:3],
+        mono_uv=np.array([[50.0, 60.0], [200.0, 100.0]]), mono_descriptors=random_descriptors(2, 99),
+    )
+    keyframe = make_keyframe(0, features, POSES[0], point_dynamic=[2], line_dynamic=[1])
+    insertion = mapping.insert_keyframe(keyframe)
+    assert insertion.keyframe == 0
+    assert (insertion.created_points, insertion.created_lines) == (5, 2)
+    # Stereo points 0, 1, 3, 4, 5 get landmarks; the dynamic point 2 and the two monocular keypoints none.
+    assert keyframe.point_ids.tolist() == [0, 1, -1, 2, 3, 4, -1, -1]
+    assert keyframe.line_ids.tolist() == [0, -1, 1]
+    points, lines = mapping.map.points, mapping.map.lines
+    assert points.n_alive == 5 and lines.n_alive == 2
+    assert points.observers[:5] == [{0: 0}, {0: 1}, {0: 3}, {0: 4}, {0: 5}]
+    assert lines.observers == [{0: 0}, {0: 2}]
+    assert np.all(points.first_keyframe == 0) and np.all(lines.first_keyframe == 0)
+    assert np.array_equal(points.descriptor, POINT_DESCRIPTORS[[0, 1, 3, 4, 5]])
+    assert np.array_equal(lines.descriptor, LINE_DESCRIPTORS[[0, 2]])
+    assert insertion.local_ba is None  # nothing seen twice yet
+    check_map_consistency(mapping.map)
+
+
+def test_new_landmarks_are_placed_in_the_world_through_the_keyframe_pose():
+    mapping = local_mapping()
+    T_c_w = pose_near_origin(seed=5, scale=2.0)
+    assert not np.allclose(T_c_w, np.eye(4), atol=0.05)
+    features = world_features(T_c_w, POINTS_W, POINT_DESCRIPTORS, LINES_W, LINE_DESCRIPTORS)
+    mapping.insert_keyframe(make_keyframe(0, features, T_c_w))
+    np.testing.assert_allclose(mapping.map.points.geometry, POINTS_W, atol=1e-9)
+    np.testing.assert_allclose(mapping.map.lines.geometry, LINES_W, atol=1e-9)
+    # Normals point from the camera to the landmark, unit length.
+    camera_centre = np.linalg.inv(T_c_w)[:3, 3]
+    rays = POINTS_W - camera_centre
+    np.testing.assert_allclose(mapping.map.points.normal, rays / np.linalg.norm(rays, axis=1, keepdims=True),
+                               atol=1e-9)
+    # The max distance of an octave-0 observation is its distance.
+    np.testing.assert_allclose(mapping.map.points.max_distance, np.linalg.norm(rays, axis=1), atol=1e-9)
+
+
+def test_a_later_keyframe_creates_landmarks_only_for_the_stereo_features_tracking_did_not_match():
+    mapping = local_mapping(config_with(covisibility_min_shared=5))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(0, 20), lines=range(0, 3)))
+    tracked = np.arange(10)  # of its 15 points, the first 10 are landmarks 0..9 (from keyframe 0)
+    second = keyframe_seeing(
+        mapping, points=[*range(10), *range(20, 25)], lines=[0, 1, 3, 4],
+        tracked_points=[*tracked, -1, -1, -1, -1, -1], tracked_lines=[0, 1, -1, -1],
+        point_dynamic=[13], line_dynamic=[3],
+    )
+    insertion = mapping.insert_keyframe(second)
+    assert (insertion.created_points, insertion.created_lines) == (4, 1)  # 20..24 minus dynamic 23; line 3
+    assert second.point_ids[:10].tolist() == tracked.tolist()
+    assert second.point_ids[10:].tolist() == [20, 21, 22, -1, 23]
+    assert second.line_ids.tolist() == [0, 1, 3, -1]
+    points = mapping.map.points
+    assert all(points.observers[i] == {0: i, 1: i} for i in range(10))
+    assert all(points.observers[i] == {0: i} for i in range(10, 20))
+    assert points.first_keyframe[20:].tolist() == [1, 1, 1, 1]
+    np.testing.assert_allclose(points.geometry[[20, 21, 22, 23]], POINTS_W[[20, 21, 22, 24]], atol=1e-6)
+    assert mapping.map.covisibility.shared(1) == {0: 10 + 2}
+    check_map_consistency(mapping.map)
+
+
+def test_the_neighbour_search_adds_the_observations_tracking_missed():
+    mapping = local_mapping(config_with(covisibility_min_shared=5))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(20), lines=range(4)))
+    # The second keyframe sees the same points and lines, but tracking matched only half of them.
+    second = keyframe_seeing(
+        mapping, points=range(20), lines=range(4), tracked_points=[*range(10), *[-1] * 10],
+        tracked_lines=[0, 1, -1, -1],
+    )
+    insertion = mapping.insert_keyframe(second)
+    # The unmatched features first got landmarks of their own, then were fused with keyframe 0's:
+    # each world point is one live landmark seen by both keyframes.
+    assert insertion.created_points == 10 and insertion.created_lines == 2
+    assert insertion.fused == 12
+    points, lines = mapping.map.points, mapping.map.lines
+    assert points.n_alive == 20 and lines.n_alive == 4
+    assert second.point_ids.tolist() == list(range(20)) and second.line_ids.tolist() == [0, 1, 2, 3]
+    assert all(points.n_observers[i] == 2 for i in range(20))
+    assert mapping.map.covisibility.shared(1) == {0: 24}
+    check_map_consistency(mapping.map)
+
+
+# --- culling recent landmarks ---------------------------------------------------------
+
+
+def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_should_see_it_is_culled():
+    mapping = local_mapping()
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(4)))
+    nothing = np.zeros(0, dtype=np.int64)
+    for frame in range(8):
+        found = [landmark for landmark, times in ((0, 2), (1, 1), (2, 8)) if frame < times]
+        mapping.record_tracking(
+            visible=(np.array([0, 1, 2]), nothing), found=(np.array(found, dtype=np.int64), nothing),
+            dynamic=(nothing, nothing),
+        )
+    points = mapping.map.points
+    assert points.visible.tolist() == [8, 8, 8, 0] and points.found.tolist() == [2, 1, 8, 0]
+    insertion = mapping.insert_keyframe(empty_keyframe(mapping))
+    # 2 of 8 is a quarter (kept); 1 of 8 is not; a landmark never predicted in view is not judged.
+    assert points.alive.tolist() == [True, False, True, True]
+    assert insertion.culled_landmarks == 1
+    assert mapping.map.keyframes[0].point_ids.tolist() == [0, -1, 2, 3]
+    check_map_consistency(mapping.map)
+
+
+def test_a_landmark_whose_observations_weigh_too_little_two_keyframes_after_its_creation_is_culled():
+    mapping = local_mapping(config_with(covisibility_min_shared=2))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(6)))
+    # Keyframe 1 sees points 0..3, keyframe 2 sees 0 and 1, all in stereo (weight 2 each):
+    # weights 6, 6, 4, 4, 2, 2; the default bound keeps two stereo keyframes' landmarks.
+    first = mapping.insert_keyframe(keyframe_seeing(mapping, points=range(4), tracked_points=range(4)))
+    assert first.culled_landmarks == 0 and mapping.map.points.n_alive == 6  # one keyframe later: none yet
+    second = mapping.insert_keyframe(keyframe_seeing(mapping, points=[0, 1], tracked_points=[0, 1]))
+    points = mapping.map.points
+    assert second.culled_landmarks == 2 and second.created_points == 0
+    assert points.alive.tolist() == [True, True, True, True, False, False]
+    assert mapping.map.keyframes[0].point_ids.tolist() == [0, 1, 2, 3, -1, -1]
+    check_map_consistency(mapping.map)
+
+
+def test_a_left_image_only_observation_weighs_half_a_stereo_one():
+    mapping = local_mapping(config_with(covisibility_min_shared=1))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(3)))
+    # Keyframe 1 sees point 0 in stereo and point 1 in its left image only (a keypoint without
+    # a stereo match tracked to landmark 1): weights 4, 3, 2.
+    keyframe_id = mapping.map.next_keyframe_id()
+    features = world_features(
+        POSES[keyframe_id], POINTS_W[[0]], POINT_DESCRIPTORS[[0]],
+        mono_uv=CAMERA.project(transform_points(POSES[keyframe_id], POINTS_W[[1]])),
+        mono_descriptors=POINT_DESCRIPTORS[[1]],
+    )
+    mapping.insert_keyframe(make_keyframe(keyframe_id, features, POSES[keyframe_id], point_ids=[0, 1]))
+    assert mapping.map.observation_weights(mapping.map.points, np.arange(3)).tolist() == [4, 3, 2]
+    mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.alive.tolist() == [True, False, False]
+    check_map_consistency(mapping.map)
+
+
+def test_the_observation_weight_is_judged_two_keyframes_after_creation_not_one():
+    mapping = local_mapping(config_with(min_observation_weight=4))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(3)))
+    mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.n_alive == 3
+    mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.n_alive == 0
+
+
+def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
+    mapping = local_mapping(config_with(min_observation_weight=1))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(2)))
+    for _ in range(3):
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    nothing = np.zeros(0, dtype=np.int64)
+    for _ in range(10):  # visible, never found: would be culled if still recent
+        mapping.record_tracking(visible=(np.array([0]), nothing), found=(nothing, nothing), dynamic=(nothing, nothing))
+    insertion = mapping.insert_keyframe(empty_keyframe(mapping))
+    assert insertion.culled_landmarks == 0 and mapping.map.points.alive.tolist() == [True, True]
+
+
+def test_a_landmark_matched_to_dynamic_features_often_enough_and_at_least_as_often_as_found_is_removed():
+    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_hits=2))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5), lines=range(2)))
+    for _ in range(3):  # the landmarks are no longer recent: only the dynamic rule can remove them
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    # (dynamic hits, found) per point: (2, 0) and (2, 2) go; (2, 3), (1, 0) and (0, 0) stay.
+    counts = [(2, 0), (2, 2), (2, 3), (1, 0), (0, 0)]
+    nothing = np.zeros(0, dtype=np.int64)
+    for frame in range(3):
+        dynamic = np.array([p for p, (hits, _) in enumerate(counts) if frame < hits], dtype=np.int64)
+        found = np.array([p for p, (_, times) in enumerate(counts) if frame < times], dtype=np.int64)
+        moving_line = np.array([0] if frame < 2 else [], dtype=np.int64)
+        mapping.record_tracking(
+            visible=(np.arange(5), np.arange(2)), found=(found, nothing), dynamic=(dynamic, moving_line)
+        )
+    insertion = mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.alive.tolist() == [False, False, True, True, True]
+    assert mapping.map.lines.alive.tolist() == [False, True]
+    assert insertion.culled_landmarks == 3
+    check_map_consistency(mapping.map)
+
+
+def test_culling_a_landmark_two_keyframes_share_lowers_their_link():
+    mapping = local_mapping(config_with(covisibility_min_shared=2))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5)))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5), tracked_points=range(5)))
+    assert mapping.map.covisibility.shared(0) == {1: 5}
+    nothing = np.zeros(0, dtype=np.int64)
+    for _ in range(8):  # landmark 0: visible, never found
+        mapping.record_tracking(visible=(np.array([0]), nothing), found=(nothing, nothing), dynamic=(nothing, nothing))
+    mapping.insert_keyframe(empty_keyframe(mapping))
+    assert not mapping.map.points.alive[0]
+    assert mapping.map.covisibility.shared(0) == {1: 4}
+
+
+# --- culling keyframes ----------------------------------------------------------------
+
+
+def test_a_keyframe_whose_landmarks_three_other_keyframes_see_is_culled_but_never_the_first():
+    mapping = local_mapping()
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(N_POINTS), lines=range(N_LINES)))
+    culled = []
+    for _ in range(4):
+        keyframe = keyframe_seeing(
+            mapping, points=range(N_POINTS), lines=range(N_LINES), tracked_points=range(N_POINTS),
+            tracked_lines=range(N_LINES),
+        )
+        culled.append(mapping.insert_keyframe(keyframe).culled_keyframes)
+    # Keyframe 3 makes every landmark seen by 4 keyframes: keyframe 1 has 3 other observers for each
+    # (culled); then keyframe 2 has only 2. Keyframe 4 brings keyframe 2 back to 3 others. Keyframe 0
+    # is redundant as often but is the first.
+    assert culled == [(), (), (1,), (2,)]
+    assert list(mapping.map.keyframes) == [0, 3, 4]
+    assert all(obs.keys() == {0, 3, 4} for obs in mapping.map.points.observers)
+    assert mapping.map.points.n_alive == N_POINTS and mapping.map.lines.n_alive == N_LINES
+    check_map_consistency(mapping.map)
+    # The culled keyframes keep their poses (nothing moved them).
+    for keyframe_id in (1, 2):
+        np.testing.assert_allclose(mapping.map.keyframe_T_w_c(keyframe_id), np.linalg.inv(POSES[keyframe_id]),
+                                   atol=1e-6)
+
+
+def test_a_keyframe_with_more_than_a_tenth_of_its_landmarks_seen_by_too_few_others_is_kept():
+    mapping = local_mapping(config_with(min_observation_weight=1))
+    shared = range(20)
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=shared))
+    # Keyframe 1 also sees 3 points nobody else sees: 20 of 23 redundant (87 %) is not enough.
+    mapping.insert_keyframe(
+        keyframe_seeing(mapping, points=[*shared, 25, 26, 27], tracked_points=[*shared, -1, -1, -1])
+    )
+    insertions = [
+        mapping.insert_keyframe(keyframe_seeing(mapping, points=shared, tracked_points=shared)) for _ in range(2)
+    ]
+    # Keyframe 3 makes keyframe 2 (only shared points) redundant, never keyframe 1.
+    assert [i.culled_keyframes for i in insertions] == [(), (2,)]
+    assert 1 in mapping.map.keyframes
+    assert mapping.map.points.n_alive == 23
+
+
+def test_a_keyframe_inserted_without_shared_landmarks_joins_the_tree_under_the_root_side():
+    mapping = local_mapping(config_with(covisibility_min_shared=5, min_observation_weight=1))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(0, 10)))
+    # After a fast turn: keyframe 1 sees none of keyframe 0's points.
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(10, 20)))
+    assert mapping.map.covisibility.parent[1] is None
+    # Keyframe 2 tracks keyframe 1's landmarks, and a few of keyframe 0's.
+    tracked = [landmark_of(mapping, 1, i) for i in range(10)] + [0, 1]
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=[*range(10, 20), 0, 1], tracked_points=tracked))
+    graph = mapping.map.covisibility
+    assert graph.shared(2) == {0: 2, 1: 10}
+    # Found: keyframe 2 took 1 as parent, then 1 (first linked while fusing) took 2: 1 -> 2 -> 1.
+    assert all(reaches_root(graph, keyframe) for keyframe in mapping.map.keyframes)
+
+
+# --- a short run ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def mapped_run(tmp_path_factory):
+    """A run with mapping on over a short synthetic street (``static``, 10 frames, 320 x 240)."""
+    folder = tmp_path_factory.mktemp("local_mapping") / "static"
+    write_sequence(folder, "static", 10, (320, 240), seed=0)
+    return System(open_sequence(folder), load_config()).run()
+
+
+def test_a_mapped_run_keeps_the_map_consistent(mapped_run):
+    world_map = mapped_run.map
+    assert len(mapped_run.insertions) >= 3
+    assert world_map.points.n_alive > 0 and world_map.lines.n_alive > 0
+    check_map_consistency(world_map)
+    assert all(world_map.covisibility.shared(k) for k in world_map.keyframes)  # no keyframe left unlinked
+    # Every keyframe inserted is in the map or was reported culled.
+    assert sum(len(i.culled_keyframes) for i in mapped_run.insertions) == len(mapped_run.insertions) - len(
+        world_map.keyframes
+    )
+
