@@ -50,7 +50,8 @@ def format_run_table(summary: dict) -> str:
     for stage in STAGES:
         timing = summary["timing_ms"].get(stage)
         if timing:
-            rows.append((f"{stage} ms/frame (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
+            per = "keyframe" if stage == "mapping" else "frame"
+            rows.append((f"{stage} ms/{per} (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
     return "\n".join(f"{label:<28}{value}" for label, value in rows)
 
 
