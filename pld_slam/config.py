@@ -72,12 +72,17 @@ class PointsConfig:
 
 @dataclass(frozen=True)
 class LinesConfig:
-    """LSD line segments and the two line error terms of pose estimation (ablation switches)."""
+    """Line segments (detection, LBD, stereo matching) and the two line error terms of pose estimation."""
 
     enabled: bool = _param(True, "use line segments at all (off: a point-only system)")
     vertical_error: bool = _param(True, "line vertical error: endpoint distance to the detected line")
     horizontal_error: bool = _param(True, "line horizontal error: endpoint error along the line")
-    lsd_scale: float = _param(0.5, "LSD works on the image scaled by this (OpenCV default 0.8)", 0.1, 1.0)
+    detector: Literal["lsd", "fld", "edlines"] = _param(
+        "lsd", "segment detector: OpenCV's LSD, FastLineDetector or EDLines (EdgeDrawing)"
+    )
+    detection_scale: float = _param(
+        0.5, "every detector works on the image scaled by this (LSD's own default: 0.8)", 0.1, 1.0
+    )
     min_length: float = _param(0.015, "shortest segment kept, as a fraction of the image diagonal", 0.0, 1.0)
     max_lines: int = _param(150, "segments kept per image, longest first", 1)
     min_angle_from_horizontal: float = _param(

@@ -1,15 +1,20 @@
-"""Stereo LSD lines: segment geometry helpers, stereo line matching and endpoint disparities,
-on rendered planes of known pose and on a real KITTI pair."""
+"""Stereo lines: the three segment detectors on rendered squares, segment geometry helpers,
+stereo line matching and endpoint disparities, on rendered planes of known pose and on a
+real KITTI pair."""
+
+import typing
 
 import cv2
 import numpy as np
 import pytest
 from conftest import require
 
-from pld_slam.config import LinesConfig, PointsConfig
+from pld_slam.config import LinesConfig, PointsConfig, load_config
 from pld_slam.datasets import open_sequence
+from pld_slam.errors import ConfigError
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.frontend.lines import (
+    DETECTORS,
     detect_image_lines,
     endpoint_disparities,
     match_stereo_lines,
@@ -125,7 +130,7 @@ def test_near_horizontal_edges_are_dropped_and_upright_ones_kept():
     config = LinesConfig()
     square = [np.array([[-0.5, -0.5, 3.0], [0.5, -0.5, 3.0], [0.5, 0.5, 3.0], [-0.5, 0.5, 3.0]])]
     left, right = render_polygons(square, [200])
-    raw = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, config.lsd_scale).detect(left)[0].reshape(-1, 2, 2)
+    raw = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, config.detection_scale).detect(left)[0].reshape(-1, 2, 2)
     assert near_horizontal(raw, config.min_angle_from_horizontal).sum() >= 2  # the top and bottom edges
     lines = stereo_lines(left, right, config)
     angles = np.abs(segment_directions(lines.endpoints))
@@ -134,11 +139,111 @@ def test_near_horizontal_edges_are_dropped_and_upright_ones_kept():
     np.testing.assert_allclose(lines.disparity, CAMERA.bf / 3.0, atol=0.1)
 
 
-def test_blank_images_give_no_lines():
+@pytest.mark.parametrize("detector", sorted(DETECTORS))
+def test_blank_images_give_no_lines(detector):
     blank = np.full((CAMERA.height, CAMERA.width), 128, dtype=np.uint8)
-    lines = stereo_lines(blank, blank, LinesConfig())
+    lines = stereo_lines(blank, blank, LinesConfig(detector=detector))
     assert len(lines) == 0
     assert lines.endpoints_c.shape == (0, 2, 3) and lines.descriptors.shape == (0, 32)
+
+
+# --- the three detectors on turned squares -----------------------------------------------
+
+SQUARES_DEPTH = 4.0
+"""Depth of the frontal plane of `noisy_squares` [m]: every point's disparity is bf / 4 = 12.5 px."""
+
+EDGE_TOLERANCE = {"lsd": (0.4, 2.0), "fld": (3.5, 16.0), "edlines": (3.0, 3.5)}
+"""Per detector, how far a segment's endpoints may lie across its square edge and past the
+edge's corners [px]. Measured over eight noise seeds, on the image and on it one pixel
+smaller: at most 0.26 and 1.5 (LSD), 3.0 and 13.5 (FLD: its endpoints are edge pixels
+of the half image, and its segments run on past corners), 2.3 and 2.5 px (EDLines)."""
+
+DISPARITY_TOLERANCE = {"lsd": (0.1, 0.4), "fld": (0.6, 4.0), "edlines": (0.7, 4.0)}
+"""Per detector, the largest median and largest single endpoint disparity error on the
+frontal squares [px]. Measured over eight noise seeds: at most 0.06 and 0.28 (LSD), 0.39
+and 3.5 (FLD), 0.49 and 3.5 px (EDLines); the median is what tells them apart."""
+
+
+def add_noise(image: np.ndarray, seed: int) -> np.ndarray:
+    """``image`` (H, W) uint8 with Gaussian noise of 4 grey levels added (rounded, clipped)."""
+    noise = np.random.default_rng(seed).normal(0.0, 4.0, image.shape)
+    return np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)
+
+
+def noisy_squares(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right images of the 15 squares of `squares_on_plane` on a frontal plane, brighter
+    than the background, each with its own noise (seeds ``seed`` and ``seed + 1``)."""
+    left, right = render_polygons(squares_on_plane(0.0, SQUARES_DEPTH), [200, 140, 230, 170] * 4)
+    return add_noise(left, seed), add_noise(right, seed + 1)
+
+
+def upright_square_edges(config: LinesConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The square edges (K, 2, 2) [px] in the left image that are not near horizontal, and the
+    centre (K, 2) [px] of each one's square."""
+    corners = [CAMERA.project(square) for square in squares_on_plane(0.0, SQUARES_DEPTH)]
+    edges = np.array([[c[i], c[(i + 1) % 4]] for c in corners for i in range(4)])
+    centres = np.repeat([c.mean(axis=0) for c in corners], 4, axis=0)
+    upright = ~near_horizontal(edges, config.min_angle_from_horizontal)
+    return edges[upright], centres[upright]
+
+
+@pytest.mark.parametrize("detector", sorted(DETECTORS))
+def test_each_detector_finds_the_square_edges_at_full_resolution(detector):
+    config = LinesConfig(detector=detector)
+    across_tolerance, past_corner_tolerance = EDGE_TOLERANCE[detector]
+    left, _ = noisy_squares(seed=1)
+    segments = detect_image_lines(left[:-1, :-1], config).segments  # odd sizes: not exactly halved
+    edges, centres = upright_square_edges(config)
+    length = np.linalg.norm(edges[:, 1] - edges[:, 0], axis=1)
+    along = (edges[:, 1] - edges[:, 0]) / length[:, None]
+    offset = segments[:, None] - edges[None, :, :1]  # (M, K, 2, 2): endpoints from each edge's start
+    across = np.abs(np.einsum("mkpi,ki->mkp", offset, along[:, ::-1] * [1.0, -1.0])).max(axis=2)
+    position = np.einsum("mkpi,ki->mkp", offset, along)
+    past_corner = np.maximum(-position.min(axis=2), position.max(axis=2) - length)
+    edge = np.argmin(across + np.maximum(past_corner, 0.0), axis=1)  # the edge each segment lies on
+    each = np.arange(len(segments))
+    assert np.all(across[each, edge] <= across_tolerance)
+    assert np.all(past_corner[each, edge] <= past_corner_tolerance)
+    found = np.bincount(edge, weights=np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1), minlength=len(edges))
+    assert np.all(found >= 0.4 * length)  # every edge, along much of its length
+    direction = segments[:, 1] - segments[:, 0]
+    to_centre = centres[edge] - segments.mean(axis=1)
+    assert np.all(np.sum(to_centre * direction[:, ::-1] * [1.0, -1.0], axis=1) > 0)  # the bright side is (dv, -du)
+
+
+@pytest.mark.parametrize("detector", sorted(DETECTORS))
+def test_each_detector_gives_the_disparity_of_a_frontal_plane(detector):
+    config = LinesConfig(detector=detector)
+    median_tolerance, max_tolerance = DISPARITY_TOLERANCE[detector]
+    left, right = noisy_squares(seed=1)
+    lines = stereo_lines(left, right, config)
+    error = np.abs(lines.disparity - CAMERA.bf / SQUARES_DEPTH)
+    assert len(lines) >= 0.7 * len(upright_square_edges(config)[0])
+    assert np.median(error) < median_tolerance
+    assert error.max() < max_tolerance
+
+
+@pytest.mark.parametrize("detector", sorted(DETECTORS))
+def test_each_detector_gives_the_same_bytes_for_the_same_image(detector):
+    config = LinesConfig(detector=detector)
+    left, _ = noisy_squares(seed=1)
+    first, second = detect_image_lines(left, config), detect_image_lines(left.copy(), config)
+    assert first.segments.tobytes() == second.segments.tobytes()
+    assert first.descriptors.tobytes() == second.descriptors.tobytes()
+
+
+def test_the_config_offers_exactly_the_implemented_detectors():
+    assert set(typing.get_args(typing.get_type_hints(LinesConfig)["detector"])) == set(DETECTORS)
+
+
+def test_an_unknown_detector_is_a_config_error_naming_the_key(tmp_path):
+    message = "--set lines.detector=hough: lines.detector must be one of lsd, fld, edlines"
+    with pytest.raises(ConfigError, match=message):
+        load_config(overrides=["lines.detector=hough"])
+    upper_case = tmp_path / "upper.yaml"
+    upper_case.write_text("lines:\n  detector: LSD\n")
+    with pytest.raises(ConfigError, match=r"upper\.yaml: lines\.detector must be one of lsd, fld, edlines, got 'LSD'"):
+        load_config([upper_case])
 
 
 # --- KITTI -------------------------------------------------------------------------------
