@@ -269,14 +269,38 @@ class MappingConfig:
 
 @dataclass(frozen=True)
 class LoopConfig:
-    """Loop detection and correction (paper, section LC)."""
+    """Loop detection and correction (paper, section LC; `pld_slam.loop`)."""
 
-    detector: Literal["ggs", "bow"] = _param("ggs", "place recognition: GGS (paper) or bag of words (rival)")
+    detector: Literal["ggs", "bow", "none"] = _param(
+        "ggs", "place recognition: GGS (paper), bag of words (rival) or none (no loop closure)"
+    )
+    exclude_recent_keyframes: int = _param(
+        20, "the keyframes inserted just before a new one are never its loop candidates", 0
+    )
+    candidates: int = _param(3, "most similar candidates verified per keyframe", 1)
+    min_inliers: int = _param(
+        60, "point and line inliers the geometric check needs between a keyframe and its loop candidate's map", 1
+    )
+    max_drift_ratio: float = _param(
+        0.1, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
+    )
+    max_drift_deg: float = _param(20.0, "a loop may turn its keyframe by at most this [deg]", 0.0, 180.0)
     lc_rat_alpha: float = _param(0.001, "alpha of lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl (paper: 0.001)", 0.0)
     initial_inlier_ratio: float = _param(0.5, "initial inlier ratio of a loop candidate (paper: 0.5)", 0.0, 1.0)
     lc_rat_threshold: float = _param(0.2, "a candidate whose lc_rat lies below this is rejected (paper: 0.2)", 0.0)
     pose_graph_min_shared_ratio: float = _param(
         0.2, "share of common features for a pose-graph edge (paper: 20%)", 0.0, 1.0
+    )
+    pose_graph_max_nfev: int = _param(30, "residual evaluations of the pose-graph solve", 1)
+
+
+@dataclass(frozen=True)
+class OptimizeConfig:
+    """The final global bundle adjustment (paper, section LC: "when the system is finished")."""
+
+    global_ba: bool = _param(True, "bundle-adjust every keyframe and landmark at the end of the run")
+    global_ba_max_nfev: int = _param(
+        20, "residual evaluations of each of the two global BA solves (robust, then without outliers)", 1
     )
 
 
@@ -294,6 +318,7 @@ class Config:
     keyframes: KeyframesConfig = field(default_factory=KeyframesConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
+    optimize: OptimizeConfig = field(default_factory=OptimizeConfig)
 
 
 def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, value: Any) -> Any:

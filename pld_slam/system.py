@@ -10,8 +10,8 @@ final global BA join here as they are built.
 Every frame's pose. With a map, a frame's pose is stored relative to its reference
 keyframe (the last keyframe inserted before it; a keyframe is its own), and
 `RunResult.trajectory` composes it with that keyframe's pose at the time it is asked, so
-the written trajectory carries every correction that BA made to the keyframes after the
-frame was tracked (ORB-SLAM2 does the same). A culled keyframe leaves its pose relative
+the written trajectory carries every correction that BA and loop closing made to the
+keyframes after the frame was tracked (ORB-SLAM2 does the same). A culled keyframe leaves its pose relative
 to its spanning-tree parent (`pld_slam.mapping.map.Map.keyframe_T_w_c`).
 
 `System` keeps a `FrameRecord` per frame, so a run stopped early (Ctrl-C, an error) still
@@ -31,17 +31,21 @@ from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.se3 import inverse
 from pld_slam.keyframes import KeyframeReason
+from pld_slam.loop.loop_closing import LoopClosing
+from pld_slam.mapping.global_ba import global_bundle_adjustment
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
+from pld_slam.mapping.map_ba import BaReport
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
-STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "mapping", "total")
+STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "mapping", "loop", "total")
 """Timed stages of one frame, in order; ``mapping`` (keyframes only) is the local mapping of
-a keyframe, local BA included; ``total`` is the frame's whole wall time."""
+a keyframe, local BA included; ``loop`` (keyframes only) its loop detection, verification
+and correction; ``total`` is the frame's whole wall time."""
 
 
 @dataclass(frozen=True)
@@ -85,7 +89,8 @@ class RunResult:
     """The records of a run so far, and whether it went to the end.
 
     ``map`` is the run's map (None without mapping); ``insertions`` what local mapping did
-    at each keyframe.
+    at each keyframe; ``loop_closing`` the loop stage (its candidates and closed loops; None
+    without one); ``global_ba`` the final global BA (None when it did not run).
     """
 
     records: list[FrameRecord] = field(default_factory=list)
@@ -93,6 +98,8 @@ class RunResult:
     stop_reason: str | None = None
     map: Map | None = None
     insertions: list[KeyframeInsertion] = field(default_factory=list)
+    loop_closing: LoopClosing | None = None
+    global_ba: BaReport | None = None
 
     def trajectory(self) -> Trajectory:
         """``T_w_c`` of every processed frame, through its reference keyframe's current pose where it has one."""
@@ -121,10 +128,16 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
+        if config.loop.detector == "bow":
+            raise ConfigError("loop.detector: bow is not available yet (the vocabulary is still being built); "
+                              "use --set loop.detector=ggs or none")
         world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
         self.local_mapping = None if world_map is None else LocalMapping(world_map, sequence.camera, config)
+        self.loop_closing = None
+        if self.local_mapping is not None and config.loop.detector != "none":
+            self.loop_closing = LoopClosing(world_map, self.local_mapping, sequence.camera, config)
         self.tracker = Tracker(sequence.camera, config, world_map)
-        self.result = RunResult(map=world_map)
+        self.result = RunResult(map=world_map, loop_closing=self.loop_closing)
         self._observer = observer
 
     def process_frame(self, index: int) -> FrameRecord:
@@ -155,11 +168,9 @@ class System:
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
-        mapped = time.perf_counter()
-        reference = self._map_frame(index, timestamp, features, tracked)
+        reference = self._map_frame(index, timestamp, features, tracked, stage_ms)
         T_c_r = self._pose_to_reference(tracked.T_w_c, reference)
         if tracked.keyframe is not None:
-            stage_ms["mapping"] = _ms_since(mapped)
             T_c_r = np.eye(4)
         stage_ms["total"] = _ms_since(start)
         truth = moving_mask if moving_mask is not None else self.sequence.dynamic_mask(index)
@@ -174,11 +185,16 @@ class System:
             self._observer(frame, tracked)
         return record
 
-    def _map_frame(self, index: int, timestamp: float, features: StereoFeatures, tracked: TrackedFrame) -> int | None:
-        """Local mapping's share of a tracked frame; returns the frame's reference keyframe (None without a map).
+    def _map_frame(
+        self, index: int, timestamp: float, features: StereoFeatures, tracked: TrackedFrame,
+        stage_ms: dict[str, float],
+    ) -> int | None:
+        """Local mapping's and loop closing's share of a tracked frame; returns the frame's reference
+        keyframe (None without a map). Their times go into ``stage_ms``.
 
         The frame's sightings of landmarks go to local mapping's counters; a frame the
-        tracker names a keyframe is inserted (and becomes the tracker's reference keyframe).
+        tracker names a keyframe is inserted, looked up for a loop, and becomes the
+        tracker's reference keyframe (at its pose after any correction).
         """
         mapping = self.local_mapping
         if mapping is None:
@@ -192,8 +208,14 @@ class System:
             )
         if tracked.keyframe is None:
             return self.tracker.reference_keyframe_id
+        start = time.perf_counter()
         keyframe = _new_keyframe(mapping.map.next_keyframe_id(), index, timestamp, features, tracked)
         self.result.insertions.append(mapping.insert_keyframe(keyframe))
+        stage_ms["mapping"] = _ms_since(start)
+        if self.loop_closing is not None:
+            start = time.perf_counter()
+            self.loop_closing.process(keyframe)
+            stage_ms["loop"] = _ms_since(start)
         self.tracker.use_keyframe(keyframe)
         return keyframe.id
 
@@ -215,6 +237,7 @@ class System:
         try:
             for index in progress(range(n_frames)):
                 self.process_frame(index)
+            self._finish()
         except KeyboardInterrupt:
             self.result.stop_reason = "interrupted"
             raise
@@ -222,6 +245,13 @@ class System:
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
         return self.result
+
+    def _finish(self) -> None:
+        """Global BA over the whole map (``optimize.global_ba``), once the last frame is processed."""
+        if self.result.map is not None and self.config.optimize.global_ba:
+            start = time.perf_counter()
+            self.result.global_ba = global_bundle_adjustment(self.result.map, self.sequence.camera, self.config)
+            self.result.wall_seconds += time.perf_counter() - start
 
     def _add(self, record: FrameRecord, start: float) -> None:
         self.result.records.append(record)

@@ -37,8 +37,9 @@ from pld_slam.config import Config
 from pld_slam.frontend import LeftKeypoints, StereoFeatures, StereoLines, StereoPoints
 from pld_slam.geometry.se3 import inverse, make_pose, se3_exp, so3_exp, so3_log, transform_points
 from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.local_ba import LocalBaReport, local_bundle_adjustment
+from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
+from pld_slam.mapping.map_ba import BaReport
 
 CONFIG = dataclasses.replace(Config(), mapping=dataclasses.replace(Config().mapping, local_ba_window=2))
 CORNER_NOISE_PX = 1.0 / 3.0
@@ -195,7 +196,7 @@ class Adjusted:
     """A hand-made map before and after one local BA around its newest keyframe."""
 
     made: HandMadeMap
-    report: LocalBaReport | None
+    report: BaReport | None
     poses_before: dict[int, np.ndarray]
     points_before: np.ndarray
     lines_before: np.ndarray

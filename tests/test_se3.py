@@ -110,3 +110,22 @@ def test_se3_left_jacobian_stays_accurate_at_small_angles():
     for angle in (1e-3, 1e-5, 1e-7):
         xi = np.concatenate([rho, angle * axis])
         assert np.abs(se3_left_jacobian(xi) - at_zero).max() < 2.0 * angle * (1.0 + np.linalg.norm(rho))
+
+
+def test_stacked_maps_equal_the_maps_of_each_element():
+    rng = np.random.default_rng(3)
+    twists = np.vstack([rng.normal(0.0, 1.0, (20, 6)), np.zeros((1, 6)), [[1.0, 2.0, 3.0, 1e-9, 0.0, 0.0]],
+                        [[0.5, 0.0, 0.0, 0.0, np.pi - 1e-6, 0.0]]])
+    poses = se3_exp(twists)
+    for twist, pose in zip(twists, poses):
+        np.testing.assert_allclose(pose, se3_exp(twist), atol=1e-14)
+    np.testing.assert_allclose(se3_log(poses), [se3_log(pose) for pose in poses], atol=1e-12)
+    np.testing.assert_allclose(se3_left_jacobian(twists), [se3_left_jacobian(t) for t in twists], atol=1e-14)
+    np.testing.assert_allclose(se3_exp(se3_log(poses)), poses, atol=1e-9)
+
+
+def test_adjoint_moves_a_twist_between_frames():
+    rng = np.random.default_rng(4)
+    T = se3_exp(rng.normal(0.0, 1.0, 6))
+    xi = rng.normal(0.0, 0.5, 6)
+    np.testing.assert_allclose(T @ se3_exp(xi) @ inverse(T), se3_exp(se3.se3_adjoint(T) @ xi), atol=1e-12)

@@ -7,6 +7,7 @@ trajectory and a summary marked incomplete. Two runs on the same input write the
 With image 5 unreadable the run measured ATE 0.041 m (0.031 m intact); the bound is 0.1 m.
 """
 
+import dataclasses
 import json
 import shutil
 
@@ -15,6 +16,7 @@ import pytest
 
 from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import open_sequence
+from pld_slam.errors import ConfigError
 from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
@@ -123,9 +125,9 @@ def test_a_frame_pose_follows_later_corrections_of_its_reference_keyframe(full_r
 
 def test_tracked_frames_time_every_stage_and_the_first_frame_only_loading_the_front_end_and_mapping(full_run):
     first, *tracked = full_run.records
-    assert set(first.stage_ms) == {"load", "frontend", "mapping", "total"}
+    assert set(first.stage_ms) == {"load", "frontend", "mapping", "loop", "total"}
     for record in tracked:
-        expected = set(STAGES) if record.keyframe is not None else set(STAGES) - {"mapping"}
+        expected = set(STAGES) if record.keyframe is not None else set(STAGES) - {"mapping", "loop"}
         assert set(record.stage_ms) == expected
         assert all(value >= 0.0 for value in record.stage_ms.values())
         parts = sum(value for stage, value in record.stage_ms.items() if stage != "total")
@@ -285,7 +287,8 @@ def test_the_summary_of_a_whole_run(sequence, config, full_run):
     for stage in STAGES:
         values = [r.stage_ms[stage] for r in full_run.records if stage in r.stage_ms]
         keyframes = sum(r.keyframe is not None for r in full_run.records)
-        expected = {"mapping": keyframes}.get(stage, N_FRAMES - 1 if stage in TRACKING_STAGES else N_FRAMES)
+        per_frame = N_FRAMES - 1 if stage in TRACKING_STAGES else N_FRAMES
+        expected = {"mapping": keyframes, "loop": keyframes}.get(stage, per_frame)
         assert len(values) == expected
         assert timing[stage] == {"median": pytest.approx(np.median(values)), "mean": pytest.approx(np.mean(values))}
 
@@ -301,6 +304,28 @@ def test_the_summary_of_a_whole_run(sequence, config, full_run):
     medians = summary["features_median"]
     assert medians["stereo_points"] == np.median([r.n_points for r in full_run.records])
     assert medians["line_inliers"] == np.median([r.counts.line_inliers for r in full_run.records[1:]])
+
+
+def test_the_summary_lists_loop_candidates_and_the_final_global_ba(sequence, config, full_run):
+    loop = summarise_run(sequence, full_run, config)["loop"]
+    assert loop["candidates"] == [] and loop["loops"] == []  # a short straight drive: nothing to close
+    assert loop["global_ba"]["keyframes"] == len(full_run.map.keyframes)
+    assert loop["global_ba"]["points"] > 0
+
+
+def test_global_ba_moves_the_keyframes_only_at_the_end(sequence, config):
+    without = System(sequence, dataclasses.replace(config, optimize=dataclasses.replace(config.optimize,
+                                                                                        global_ba=False))).run()
+    with_ba = System(sequence, config).run()
+    assert without.global_ba is None and with_ba.global_ba is not None
+    np.testing.assert_array_equal(tracked_poses(without), tracked_poses(with_ba))
+    assert not np.allclose(without.trajectory().poses, with_ba.trajectory().poses, atol=1e-9)
+
+
+def test_the_bag_of_words_detector_is_a_clear_error_until_it_exists(sequence, config):
+    bow = dataclasses.replace(config, loop=dataclasses.replace(config.loop, detector="bow"))
+    with pytest.raises(ConfigError, match="loop.detector: bow is not available yet"):
+        System(sequence, bow)
 
 
 def test_a_sequence_without_ground_truth_has_null_accuracy(folder, tmp_path, config):

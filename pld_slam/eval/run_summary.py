@@ -5,6 +5,7 @@
 too few frames overlap it.
 """
 
+import dataclasses
 from collections import Counter
 from collections.abc import Sequence
 
@@ -138,6 +139,41 @@ def mapping_summary(result: RunResult) -> dict | None:
     }
 
 
+def loop_summary(result: RunResult) -> dict | None:
+    """What loop closing and global BA did; None without a loop stage (no map, or ``loop.detector: none``).
+
+    ``candidates``: every verified candidate (query and candidate keyframe and frame, GGS
+    distance and bar, each test's value, NaN written as null where not reached, accepted or
+    the test it failed, `pld_slam.loop.loop_closing.LoopCandidate`); ``loops``: the closed
+    loops with their correction, fusion and pose-graph solve; ``global_ba``: the final BA.
+    """
+    loop_closing = result.loop_closing
+    if loop_closing is None:
+        return None
+    ba = result.global_ba
+    return {
+        "candidates": [_json_ready(dataclasses.asdict(c)) for c in loop_closing.candidates],
+        "loops": [
+            {
+                "keyframe": loop.keyframe, "candidate": loop.candidate, "frame": loop.frame,
+                "candidate_frame": loop.candidate_frame, "correction_m": loop.correction_m,
+                "correction_deg": loop.correction_deg, "fused": loop.fused, "graph_edges": loop.graph_edges,
+                "pose_graph_ms": loop.pose_graph.ms, "pose_graph_nfev": loop.pose_graph.nfev, "ms": loop.ms,
+            }
+            for loop in loop_closing.loops
+        ],
+        "global_ba": None if ba is None else {
+            "ms": ba.ms, "nfev": ba.nfev, "keyframes": ba.free_keyframes + ba.fixed_keyframes,
+            "points": ba.points, "lines": ba.lines, "removed_observations": ba.removed_observations,
+        },
+    }
+
+
+def _json_ready(values: dict) -> dict:
+    """``values`` with NaN floats as None (JSON has no NaN)."""
+    return {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in values.items()}
+
+
 def _median_or_none(values: list[int]) -> float | None:
     """Median of ``values``, None for none (a run stopped at its first frame)."""
     return float(np.median(values)) if values else None
@@ -176,6 +212,7 @@ def summarise_run(
             "map_line_inliers": _median_or_none([r.counts.map_line_inliers for r in records[1:]]),
         },
         "mapping": mapping_summary(result),
+        "loop": loop_summary(result),
         "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
         "config_sources": None if config_sources is None else list(config_sources),

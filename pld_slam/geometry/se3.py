@@ -11,69 +11,92 @@ _SMALL_ANGLE = 1e-8
 
 
 def hat(w: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrix of a 3-vector, ``hat(w) @ v == cross(w, v)``. Shape (3, 3)."""
-    wx, wy, wz = w
-    return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+    """Skew-symmetric matrix of a 3-vector, ``hat(w) @ v == cross(w, v)``: (3,) -> (3, 3), or (N, 3) -> (N, 3, 3)."""
+    w = np.asarray(w, dtype=np.float64)
+    K = np.zeros((*w.shape[:-1], 3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return K
+
+
+def _angles(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angle ``theta`` (...,), its square, and ``hat(phi)`` (..., 3, 3) of rotation vectors (..., 3)."""
+    theta = np.linalg.norm(phi, axis=-1)
+    return theta, theta * theta, hat(phi)
+
+
+def _coefficient(theta: np.ndarray, small: np.ndarray, closed, series) -> np.ndarray:
+    """``closed(theta)`` where the angle is not small, ``series(theta**2)`` where it is (...,)."""
+    safe = np.where(small, 1.0, theta)
+    return np.where(small, series(theta * theta), closed(safe))
+
+
+def _sin_over(theta: np.ndarray, small: np.ndarray) -> np.ndarray:
+    return _coefficient(theta, small, lambda t: np.sin(t) / t, lambda t2: 1.0 - t2 / 6.0)
+
+
+def _one_minus_cos_over(theta: np.ndarray, small: np.ndarray) -> np.ndarray:
+    return _coefficient(theta, small, lambda t: (1.0 - np.cos(t)) / t**2, lambda t2: 0.5 - t2 / 24.0)
+
+
+def _angle_minus_sin_over(theta: np.ndarray, small: np.ndarray) -> np.ndarray:
+    return _coefficient(theta, small, lambda t: (t - np.sin(t)) / t**3, lambda t2: 1.0 / 6.0 - t2 / 120.0)
 
 
 def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3, 3) of a rotation vector ``phi`` (3,) [rad] (Rodrigues)."""
-    phi = np.asarray(phi, dtype=np.float64)
-    theta = np.linalg.norm(phi)
-    K = hat(phi)
-    if theta < _SMALL_ANGLE:
-        return np.eye(3) + K + 0.5 * K @ K
-    return (
-        np.eye(3)
-        + (np.sin(theta) / theta) * K
-        + ((1.0 - np.cos(theta)) / theta**2) * K @ K
-    )
+    """Rotation matrix of a rotation vector ``phi`` [rad] (Rodrigues): (3,) -> (3, 3), or (N, 3) -> (N, 3, 3)."""
+    theta, _, K = _angles(np.asarray(phi, dtype=np.float64))
+    small = theta < _SMALL_ANGLE
+    a, b = _sin_over(theta, small)[..., None, None], _one_minus_cos_over(theta, small)[..., None, None]
+    return np.eye(3) + a * K + b * K @ K
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) [rad] of a rotation matrix (3, 3); angle in [0, pi]."""
-    cos_theta = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    """Rotation vector [rad] of a rotation matrix, angle in [0, pi]: (3, 3) -> (3,), or (N, 3, 3) -> (N, 3)."""
+    R = np.asarray(R, dtype=np.float64)
+    cos_theta = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     theta = np.arccos(cos_theta)
-    vee = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if theta < 1e-6:
-        return 0.5 * vee
-    if np.pi - theta < 1e-4:
-        # Near pi the antisymmetric part vanishes: read the axis off R + I.
-        B = 0.5 * (R + np.eye(3))
-        axis = np.sqrt(np.clip(np.diag(B), 0.0, None))
-        k = int(np.argmax(axis))
-        axis = B[k] / axis[k]
-        axis /= np.linalg.norm(axis)
-        if np.dot(axis, vee) < 0.0:
-            axis = -axis
-        return theta * axis
-    return theta / (2.0 * np.sin(theta)) * vee
+    vee = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    small, near_pi = theta < 1e-6, np.pi - theta < 1e-4
+    general = np.where(small | near_pi, 0.5, theta / (2.0 * np.sin(np.where(small | near_pi, 1.0, theta))))
+    phi = general[..., None] * vee
+    if np.any(near_pi):
+        phi = np.where(near_pi[..., None], _log_near_pi(R, theta, vee), phi)
+    return phi
+
+
+def _log_near_pi(R: np.ndarray, theta: np.ndarray, vee: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) of rotations near pi, where the antisymmetric part vanishes: the axis from R + I."""
+    B = 0.5 * (R + np.eye(3))
+    diagonal = np.sqrt(np.clip(np.diagonal(B, axis1=-2, axis2=-1), 0.0, None))
+    k = np.argmax(diagonal, axis=-1)
+    row = np.take_along_axis(B, k[..., None, None], axis=-2)[..., 0, :]
+    axis = row / np.maximum(np.take_along_axis(diagonal, k[..., None], axis=-1), 1e-300)
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    axis = np.where((np.sum(axis * vee, axis=-1) < 0.0)[..., None], -axis, axis)
+    return theta[..., None] * axis
 
 
 def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
-    """SO(3) left Jacobian J(phi), shape (3, 3)."""
-    theta = np.linalg.norm(phi)
-    K = hat(phi)
-    if theta < _SMALL_ANGLE:
-        return np.eye(3) + 0.5 * K
-    return (
-        np.eye(3)
-        + ((1.0 - np.cos(theta)) / theta**2) * K
-        + ((theta - np.sin(theta)) / theta**3) * K @ K
-    )
+    """SO(3) left Jacobian J(phi): (3,) -> (3, 3), or (N, 3) -> (N, 3, 3)."""
+    theta, _, K = _angles(np.asarray(phi, dtype=np.float64))
+    small = theta < _SMALL_ANGLE
+    b, c = _one_minus_cos_over(theta, small)[..., None, None], _angle_minus_sin_over(theta, small)[..., None, None]
+    return np.eye(3) + b * K + c * K @ K
 
 
 def se3_left_jacobian(xi: np.ndarray) -> np.ndarray:
-    """SE(3) left Jacobian (6, 6) of a twist ``xi = (rho, phi)`` (6,).
+    """SE(3) left Jacobian of a twist ``xi = (rho, phi)``: (6,) -> (6, 6), or (N, 6) -> (N, 6, 6).
 
     ``se3_exp(xi + d) = se3_exp(J @ d) @ se3_exp(xi)`` to first order in ``d``;
     ``J = [[J_l(phi), Q(rho, phi)], [0, J_l(phi)]]`` (Barfoot, State Estimation for
     Robotics, eq. 7.85-7.86).
     """
-    rho, phi = xi[:3], xi[3:]
-    J = np.zeros((6, 6))
-    J[:3, :3] = J[3:, 3:] = so3_left_jacobian(phi)
-    J[:3, 3:] = _translation_coupling(rho, phi)
+    xi = np.asarray(xi, dtype=np.float64)
+    rho, phi = xi[..., :3], xi[..., 3:]
+    J = np.zeros((*xi.shape[:-1], 6, 6))
+    J[..., :3, :3] = J[..., 3:, 3:] = so3_left_jacobian(phi)
+    J[..., :3, 3:] = _translation_coupling(rho, phi)
     return J
 
 
@@ -83,17 +106,16 @@ coefficients cancel catastrophically for small angles (``(theta^2/2 + cos - 1) /
 
 
 def _translation_coupling(rho: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """The block ``Q(rho, phi)`` (3, 3) of the SE(3) left Jacobian; series below 1e-2 rad."""
-    theta = np.linalg.norm(phi)
-    R, P = hat(rho), hat(phi)
-    if theta < _COUPLING_SERIES_BELOW:
-        t2 = theta * theta
-        c1, c2, c3 = 1 / 6 - t2 / 120, 1 / 24 - t2 / 720, 1 / 120 - t2 / 2520
-    else:
-        s, c = np.sin(theta), np.cos(theta)
-        c1 = (theta - s) / theta**3
-        c2 = (theta * theta / 2 + c - 1) / theta**4
-        c3 = (2 * theta - 3 * s + theta * c) / (2 * theta**5)
+    """The block ``Q(rho, phi)`` (..., 3, 3) of the SE(3) left Jacobian; series below 1e-2 rad."""
+    theta, t2, P = _angles(phi)
+    R = hat(rho)
+    small = theta < _COUPLING_SERIES_BELOW
+    c1 = _coefficient(theta, small, lambda t: (t - np.sin(t)) / t**3, lambda t2: 1 / 6 - t2 / 120)
+    c2 = _coefficient(theta, small, lambda t: (t * t / 2 + np.cos(t) - 1) / t**4, lambda t2: 1 / 24 - t2 / 720)
+    c3 = _coefficient(
+        theta, small, lambda t: (2 * t - 3 * np.sin(t) + t * np.cos(t)) / (2 * t**5), lambda t2: 1 / 120 - t2 / 2520
+    )
+    c1, c2, c3 = (c[..., None, None] for c in (c1, c2, c3))
     PRP = P @ R @ P
     return (
         0.5 * R
@@ -104,19 +126,32 @@ def _translation_coupling(rho: np.ndarray, phi: np.ndarray) -> np.ndarray:
 
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """Pose (4, 4) of a twist ``xi = (rho, phi)`` (6,)."""
+    """Pose of a twist ``xi = (rho, phi)``: (6,) -> (4, 4), or (N, 6) -> (N, 4, 4)."""
     xi = np.asarray(xi, dtype=np.float64)
-    T = np.eye(4)
-    T[:3, :3] = so3_exp(xi[3:])
-    T[:3, 3] = so3_left_jacobian(xi[3:]) @ xi[:3]
+    T = np.zeros((*xi.shape[:-1], 4, 4))
+    T[..., :3, :3] = so3_exp(xi[..., 3:])
+    T[..., :3, 3] = np.einsum("...ij,...j->...i", so3_left_jacobian(xi[..., 3:]), xi[..., :3])
+    T[..., 3, 3] = 1.0
     return T
 
 
 def se3_log(T: np.ndarray) -> np.ndarray:
-    """Twist ``(rho, phi)`` (6,) of a pose (4, 4); inverse of `se3_exp`."""
-    phi = so3_log(T[:3, :3])
-    rho = np.linalg.solve(so3_left_jacobian(phi), T[:3, 3])
-    return np.concatenate([rho, phi])
+    """Twist ``(rho, phi)`` of a pose; inverse of `se3_exp`: (4, 4) -> (6,), or (N, 4, 4) -> (N, 6)."""
+    phi = so3_log(T[..., :3, :3])
+    rho = np.linalg.solve(so3_left_jacobian(phi), T[..., :3, 3:4])[..., 0]
+    return np.concatenate([rho, phi], axis=-1)
+
+
+def se3_adjoint(T: np.ndarray) -> np.ndarray:
+    """Adjoint of a pose for twists ``(rho, phi)``: (4, 4) -> (6, 6), or (N, 4, 4) -> (N, 6, 6).
+
+    ``T @ se3_exp(xi) @ inverse(T) == se3_exp(se3_adjoint(T) @ xi)``; ``[[R, hat(t) R], [0, R]]``.
+    """
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    adjoint = np.zeros((*T.shape[:-2], 6, 6))
+    adjoint[..., :3, :3] = adjoint[..., 3:, 3:] = R
+    adjoint[..., :3, 3:] = hat(t) @ R
+    return adjoint
 
 
 def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:

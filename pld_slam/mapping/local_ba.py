@@ -3,178 +3,19 @@
 The window: the new keyframe and its ``mapping.local_ba_window`` strongest covisible
 keyframes are free, with the landmarks they observe; every other keyframe that observes
 those landmarks is held fixed, as in ORB-SLAM2 (it anchors the window to the rest of the
-map). What the paper leaves open, and what we do:
-
-- Landmarks seen by a single keyframe are left out: an observation of a landmark no
-  other keyframe sees can always be fitted exactly by moving the landmark, so it adds
-  nothing to the poses, only unknowns to the solve.
-- Gauge: when no keyframe outside the window observes its landmarks (the first keyframes
-  of a run), the oldest keyframe of the window is held fixed instead (ORB-SLAM2 always
-  holds keyframe 0 fixed).
-- Residuals, loss and rounds are those of `pld_slam.optim.bundle_adjustment`: point
-  stereo reprojection, line vertical and horizontal errors of both endpoints in every
-  observing keyframe, weighted by their inverse covariances, Huber loss, then a plain
-  round without the outliers.
-
-Afterwards the poses and landmarks go back into the map, and the observations failing
-their chi-square test at the result are erased from it (a landmark left without
-observers dies).
+map). The solve itself, and what it leaves out, is `pld_slam.mapping.map_ba`.
 """
-
-import time
-from dataclasses import dataclass
-
-import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
-from pld_slam.optim.bundle_adjustment import (
-    BundleLineObservations,
-    BundleOptions,
-    BundlePointObservations,
-    BundleProblem,
-    bundle_adjust,
-)
-from pld_slam.optim.line_reprojection import endpoints_away_from_border
-
-
-@dataclass(frozen=True)
-class LocalBaReport:
-    """What one local BA did.
-
-    Attributes
-    ----------
-    free_keyframes, fixed_keyframes : keyframes optimised and held fixed.
-    points, lines : landmarks optimised.
-    observations : point and line observations in the problem.
-    removed_observations : observations erased as outliers afterwards.
-    nfev : residual evaluations.
-    initial_cost, final_cost : cost of the final inliers before and after [whitened units].
-    ms : wall time [ms], building the problem and writing back included.
-    """
-
-    free_keyframes: int
-    fixed_keyframes: int
-    points: int
-    lines: int
-    observations: int
-    removed_observations: int
-    nfev: int
-    initial_cost: float
-    final_cost: float
-    ms: float
-
-
-@dataclass(frozen=True)
-class _Observations:
-    """The observations of one landmark kind in the window: landmark row, keyframe id, feature index (M,)."""
-
-    row: np.ndarray
-    keyframe: np.ndarray
-    feature: np.ndarray
+from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
 
 
 def local_bundle_adjustment(
     world_map: Map, keyframe: KeyFrame, camera: StereoCamera, config: Config
-) -> LocalBaReport | None:
+) -> BaReport | None:
     """Run local BA around ``keyframe`` and write the result into ``world_map``; None with nothing to adjust."""
-    start = time.perf_counter()
     window = [keyframe.id, *world_map.covisibility.neighbours(keyframe.id, limit=config.mapping.local_ba_window)]
-    point_ids = _landmarks_of(world_map, world_map.points, window)
-    line_ids = _landmarks_of(world_map, world_map.lines, window)
-    points = _observations(world_map, world_map.points, point_ids)
-    lines = _observations(world_map, world_map.lines, line_ids)
-    keyframes = np.unique(np.concatenate([window, points.keyframe, lines.keyframe])).astype(np.int64)
-    fixed = ~np.isin(keyframes, window)
-    if not fixed.any():
-        fixed[np.argmin(keyframes)] = True
-    if len(points.row) + len(lines.row) == 0 or fixed.all():
-        return None
-    problem = BundleProblem(
-        T_c_w=np.array([world_map.keyframes[k].T_c_w for k in keyframes.tolist()]),
-        fixed=fixed,
-        points_w=world_map.points.geometry[point_ids],
-        lines_w=world_map.lines.geometry[line_ids],
-        point_observations=_point_observations(world_map, points, keyframes, config),
-        line_observations=_line_observations(world_map, lines, keyframes, camera, config),
-    )
-    options = BundleOptions(
-        use_line_vertical=config.lines.vertical_error,
-        use_line_horizontal=config.lines.horizontal_error,
-        max_nfev=config.mapping.local_ba_max_nfev,
-    )
-    result = bundle_adjust(camera, problem, options)
-    for index in np.flatnonzero(~fixed).tolist():
-        world_map.keyframes[int(keyframes[index])].T_c_w = result.T_c_w[index]
-    world_map.points.geometry[point_ids] = result.points_w
-    world_map.lines.geometry[line_ids] = result.lines_w
-    removed = _erase(world_map, world_map.points, points, ~result.inliers.points)
-    removed += _erase(world_map, world_map.lines, lines, ~result.inliers.lines)
-    return LocalBaReport(
-        free_keyframes=int(np.count_nonzero(~fixed)),
-        fixed_keyframes=int(np.count_nonzero(fixed)),
-        points=len(point_ids),
-        lines=len(line_ids),
-        observations=len(points.row) + len(lines.row),
-        removed_observations=removed,
-        nfev=result.nfev,
-        initial_cost=result.initial_cost,
-        final_cost=result.final_cost,
-        ms=1e3 * (time.perf_counter() - start),
-    )
-
-
-def _landmarks_of(world_map: Map, kind: Landmarks, keyframes: list[int]) -> np.ndarray:
-    """Live landmarks (K,) of ``kind`` observed by ``keyframes`` and by at least two keyframes in all, ascending."""
-    ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
-    ids = np.unique(ids[ids >= 0])
-    return ids[kind.alive[ids] & (kind.n_observers[ids] >= 2)]
-
-
-def _observations(world_map: Map, kind: Landmarks, landmarks: np.ndarray) -> _Observations:
-    return _Observations(*world_map.observation_table(kind, landmarks))
-
-
-def _point_observations(
-    world_map: Map, observed: _Observations, keyframes: np.ndarray, config: Config
-) -> BundlePointObservations:
-    kind = world_map.points
-    uv = world_map.feature_attribute(kind, "uv", observed.keyframe, observed.feature)
-    u_right = world_map.feature_attribute(kind, "u_right", observed.keyframe, observed.feature)
-    octave = world_map.feature_attribute(kind, "octave", observed.keyframe, observed.feature)
-    octave_sigma = config.points.scale_factor ** octave.astype(np.float64)
-    return BundlePointObservations(
-        keyframe=np.searchsorted(keyframes, observed.keyframe),
-        point=observed.row,
-        stereo_px=np.column_stack([uv, u_right]),
-        sigma_px=np.column_stack([octave_sigma, octave_sigma, config.points.disparity_sigma_px * octave_sigma]),
-    )
-
-
-def _line_observations(
-    world_map: Map, observed: _Observations, keyframes: np.ndarray, camera: StereoCamera, config: Config
-) -> BundleLineObservations:
-    endpoints = world_map.feature_attribute(world_map.lines, "endpoints", observed.keyframe, observed.feature)
-    disparity = world_map.feature_attribute(world_map.lines, "disparity", observed.keyframe, observed.feature)
-    start_px, end_px = endpoints[:, :2], endpoints[:, 2:]
-    return BundleLineObservations(
-        keyframe=np.searchsorted(keyframes, observed.keyframe),
-        line=observed.row,
-        start_px=start_px,
-        end_px=end_px,
-        sigma_px=np.full(len(observed.row), config.tracking.line_sigma_px),
-        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
-        right_start_px=start_px - np.column_stack([disparity[:, 0], np.zeros(len(disparity))]),
-        right_end_px=end_px - np.column_stack([disparity[:, 1], np.zeros(len(disparity))]),
-    )
-
-
-def _erase(world_map: Map, kind: Landmarks, observed: _Observations, outlier: np.ndarray) -> int:
-    """Erase the outlier observations (M,) bool from the map; returns how many."""
-    for keyframe_id in np.unique(observed.keyframe[outlier]).tolist():
-        at = outlier & (observed.keyframe == keyframe_id)
-        world_map.erase_observations(kind, world_map.keyframes[keyframe_id], observed.feature[at])
-    return int(np.count_nonzero(outlier))
+    return adjust_keyframes(world_map, window, camera, config, config.mapping.local_ba_max_nfev)

@@ -48,8 +48,9 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
-from pld_slam.mapping.local_ba import LocalBaReport, local_bundle_adjustment
+from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
+from pld_slam.mapping.map_ba import BaReport
 from pld_slam.optim.line_reprojection import line_vertical_error
 from pld_slam.optim.observations import LineObservations, WhitenedRows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
@@ -85,7 +86,7 @@ class KeyframeInsertion:
     fused: int
     culled_landmarks: int
     culled_keyframes: tuple[int, ...]
-    local_ba: LocalBaReport | None
+    local_ba: BaReport | None
     stage_ms: dict[str, float]
 
 
@@ -194,9 +195,9 @@ class LocalMapping:
         for kind in self.map.kinds:
             own = _live_ids(kind, getattr(keyframe, kind.IDS_FIELD))
             for target in targets:
-                changes += self._fuse(kind, target, own)
+                changes += self.fuse(kind, target, own)
             theirs = np.concatenate([getattr(target, kind.IDS_FIELD) for target in targets] or [np.zeros(0, int)])
-            changes += self._fuse(kind, keyframe, np.setdiff1d(_live_ids(kind, theirs), own))
+            changes += self.fuse(kind, keyframe, np.setdiff1d(_live_ids(kind, theirs), own))
             self._refresh(kind, _live_ids(kind, getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
             self.map.update_links(touched)
@@ -213,8 +214,13 @@ class LocalMapping:
                     chosen.append(second)
         return [self.map.keyframes[k] for k in chosen]
 
-    def _fuse(self, kind: Landmarks, keyframe: KeyFrame, landmark_ids: np.ndarray) -> int:
-        """Project ``landmark_ids`` into ``keyframe`` and add or fuse what matches; returns the changes made."""
+    def fuse(self, kind: Landmarks, keyframe: KeyFrame, landmark_ids: np.ndarray) -> int:
+        """Project ``landmark_ids`` into ``keyframe`` and add or fuse what matches; returns the changes made.
+
+        A matched feature without a landmark observes the projected one; a feature with
+        another landmark fuses the two, the one with more observers kept. Loop closing
+        fuses the two ends of a loop the same way.
+        """
         landmark_ids = landmark_ids[kind.alive[landmark_ids]]
         if len(landmark_ids) == 0:
             return 0

@@ -213,13 +213,22 @@ def local_keyframes(world_map: Map, reference: int, limit: int) -> tuple[int, ..
 
 def gather_local_map(world_map: Map, reference: int, limit: int) -> LocalMap:
     """The local map of keyframe ``reference`` (module docstring)."""
-    keyframes = local_keyframes(world_map, reference, limit)
+    return local_map_of(world_map, local_keyframes(world_map, reference, limit))
+
+
+def local_map_of(world_map: Map, keyframes: tuple[int, ...], excluded: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> LocalMap:
+    """The live landmarks ``keyframes`` (ids, the reference first) observe, but the point and line ids
+    ``excluded`` (two int arrays; None for none)."""
     snapshots = []
-    for kind in world_map.kinds:
+    for n, kind in enumerate(world_map.kinds):
         ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
         ids = np.unique(ids[ids >= 0])
-        snapshots.append(LandmarkSnapshot.of(kind, ids[kind.alive[ids]]))
-    return LocalMap(keyframes, *snapshots)
+        ids = ids[kind.alive[ids]]
+        if excluded is not None:
+            ids = np.setdiff1d(ids, excluded[n])
+        snapshots.append(LandmarkSnapshot.of(kind, ids))
+    return LocalMap(tuple(keyframes), *snapshots)
 
 
 def match_map_points(

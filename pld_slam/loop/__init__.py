@@ -1,0 +1,1 @@
+"""Loop closing: GGS place recognition, candidate verification, loop correction and the pose graph."""

@@ -1,0 +1,309 @@
+"""`LoopClosing`: detect, verify and correct loops, one new keyframe at a time (ORB-SLAM2's
+``LoopClosing::Run``, inline after local mapping).
+
+For each new keyframe: its GGS candidates (`pld_slam.loop.ggs_detector`), each verified
+(`pld_slam.loop.verify`: neighbourhood, geometric check, drift gate, lc_rat) until one
+passes; then the loop is corrected:
+
+1. The current keyframe takes the pose the geometric check found in the candidate's map,
+   and its covisible neighbours move with it, rigidly (ORB-SLAM2's corrected Sim(3)s; SE(3)
+   here), with the landmarks they observe.
+2. Fusion: each inlier of the check makes the current keyframe's feature observe the
+   candidate's landmark (fused with the one it observed, if any), and the landmarks of the
+   candidate's local map are projected into the moved keyframes and fused (ORB-SLAM2's
+   ``SearchAndFuse``). The two ends of the loop now share landmarks.
+3. Pose graph (`pld_slam.loop.pose_graph`) over every keyframe: the essential graph as it
+   was before the correction, measured with the poses before it, plus every loop edge
+   closed so far.
+4. Every landmark moves with its reference keyframe (the keyframe that created it, or its
+   first observer when that one was culled), as ORB-SLAM2 corrects map points; frames
+   follow their reference keyframes through their relative storage (`pld_slam.system`).
+
+The loop keyframes are not protected from culling (ORB-SLAM2 protects them); a loop edge
+whose keyframe was culled is dropped from later graphs.
+"""
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pld_slam.config import Config
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import inverse, rotation_angle, transform_points
+from pld_slam.loop.ggs_detector import ggs_loop_candidates
+from pld_slam.loop.pose_graph import (
+    PoseGraph,
+    PoseGraphResult,
+    essential_edges,
+    optimize_pose_graph,
+    relative_poses,
+)
+from pld_slam.loop.verify import (
+    GeometricCheck,
+    around,
+    geometric_check,
+    lc_rat,
+    neighbourhood,
+    path_length,
+    plausible_drift,
+    present_landmarks,
+    relative_motion,
+)
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.landmarks import Landmarks
+from pld_slam.mapping.local_mapping import LocalMapping
+from pld_slam.mapping.map import Map
+from pld_slam.optim.pose_only import PoseOnlyOptions
+from pld_slam.tracking.local_map import local_map_of
+
+
+@dataclass(frozen=True)
+class LoopCandidate:
+    """One candidate of one keyframe and what verification made of it.
+
+    Attributes
+    ----------
+    keyframe, frame : the query keyframe's id and frame index.
+    candidate, candidate_frame : the candidate's.
+    ggs_distance, bar : their GGS distance and the bar it passed (`pld_slam.loop.ggs_detector`).
+    previous_distance, neighbour_distance : stage 2 (`pld_slam.loop.verify.Neighbourhood`).
+    matches, inliers, inlier_ratio, motion, lc_rat : the geometric check and stage 1 (NaN
+        where not reached).
+    correction_m, correction_deg : the correction the loop would make to the keyframe.
+    accepted : whether the loop was closed with it.
+    reason : ``"accepted"`` or the test it failed (``"neighbourhood"``, ``"pnp"``,
+        ``"inliers"``, ``"drift"``, ``"lc_rat"``).
+    """
+
+    keyframe: int
+    frame: int
+    candidate: int
+    candidate_frame: int
+    ggs_distance: float
+    bar: float
+    previous_distance: float
+    neighbour_distance: float
+    matches: float
+    inliers: float
+    inlier_ratio: float
+    motion: float
+    lc_rat: float
+    correction_m: float
+    correction_deg: float
+    accepted: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """A corrected loop: its keyframes and frames, the correction of the current keyframe
+    (translation [m], rotation [deg]), landmark observations fused, pose-graph edges and solve,
+    and the whole correction's wall time [ms]."""
+
+    keyframe: int
+    candidate: int
+    frame: int
+    candidate_frame: int
+    correction_m: float
+    correction_deg: float
+    fused: int
+    graph_edges: int
+    pose_graph: PoseGraphResult
+    ms: float
+
+
+@dataclass(frozen=True)
+class _LoopEdge:
+    """A closed loop's edge: keyframe ids and the measured pose ``T_i_j`` (4, 4) of j in i."""
+
+    i: int
+    j: int
+    T_i_j: np.ndarray
+
+
+class LoopClosing:
+    """Loop detection and correction over the map (module docstring)."""
+
+    def __init__(self, world_map: Map, local_mapping: LocalMapping, camera: StereoCamera, config: Config) -> None:
+        self.map = world_map
+        self._local_mapping = local_mapping
+        self._camera = camera
+        self._config = config
+        self._pose_options = PoseOnlyOptions(
+            use_line_vertical=config.lines.vertical_error, use_line_horizontal=config.lines.horizontal_error
+        )
+        self._loop_edges: list[_LoopEdge] = []
+        self.candidates: list[LoopCandidate] = []
+        """Every candidate verified so far."""
+        self.loops: list[ClosedLoop] = []
+        """Every loop closed so far."""
+
+    def process(self, keyframe: KeyFrame) -> ClosedLoop | None:
+        """Look for a loop of ``keyframe`` (just inserted, after local mapping) and close the first verified one."""
+        found = ggs_loop_candidates(self.map, keyframe, self._config.loop)
+        for candidate_id, distance in zip(found.keyframes.tolist(), found.distances.tolist()):
+            candidate = self.map.keyframes[candidate_id]
+            record, check = self._verify(keyframe, candidate, distance, found.bar)
+            self.candidates.append(record)
+            if check is not None:
+                loop = self._close(keyframe, candidate, check)
+                self.loops.append(loop)
+                return loop
+        return None
+
+    def _verify(
+        self, keyframe: KeyFrame, candidate: KeyFrame, distance: float, bar: float
+    ) -> tuple[LoopCandidate, GeometricCheck | None]:
+        """The candidate's record, and its geometric check when it passed every test (None otherwise)."""
+        config = self._config.loop
+        stage_2 = neighbourhood(self.map, keyframe, candidate)
+        values = dict(matches=np.nan, inliers=np.nan, inlier_ratio=np.nan, motion=np.nan, lc_rat=np.nan,
+                      correction_m=np.nan, correction_deg=np.nan)
+        check, reason = None, "neighbourhood"
+        if stage_2.passes(bar):
+            check = geometric_check(self.map, keyframe, candidate, self._camera, self._config, self._pose_options)
+            reason = "pnp"
+        if check is not None:
+            motion = relative_motion(check.T_c_w, candidate.T_c_w)
+            score = lc_rat(check.inlier_ratio, motion, config)
+            values = dict(matches=check.matches, inliers=check.inliers, inlier_ratio=check.inlier_ratio,
+                          motion=motion, lc_rat=score)
+            correction = check.T_c_w @ keyframe.T_w_c
+            drift = plausible_drift(correction, path_length(self.map, candidate.id, keyframe.id), config)
+            values["correction_m"] = float(np.linalg.norm(inverse(correction)[:3, 3]))
+            values["correction_deg"] = float(np.degrees(rotation_angle(correction[:3, :3])))
+            if check.inliers < config.min_inliers:
+                reason = "inliers"
+            elif not drift:
+                reason = "drift"
+            elif score < config.lc_rat_threshold:
+                reason = "lc_rat"
+            else:
+                reason = "accepted"
+        record = LoopCandidate(
+            keyframe=keyframe.id, frame=keyframe.frame_index, candidate=candidate.id,
+            candidate_frame=candidate.frame_index, ggs_distance=distance, bar=bar,
+            previous_distance=stage_2.previous_distance, neighbour_distance=stage_2.neighbour_distance,
+            accepted=reason == "accepted", reason=reason, **values,
+        )
+        return record, check if record.accepted else None
+
+    def _close(self, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck) -> ClosedLoop:
+        """Correct the loop ``keyframe`` -> ``candidate`` found by ``check`` (module docstring)."""
+        start = time.perf_counter()
+        before = {k: frame.T_c_w.copy() for k, frame in self.map.keyframes.items()}
+        edges = essential_edges(self.map, self._config.loop.pose_graph_min_shared_ratio)
+        correction = check.T_c_w @ keyframe.T_w_c
+        group = [keyframe.id, *self.map.covisibility.neighbours(keyframe.id)]
+        self._move_rigidly(group, check.T_c_w @ keyframe.T_w_c)
+        fused = self._fuse(keyframe, candidate, check, group)
+        self._loop_edges.append(_LoopEdge(keyframe.id, candidate.id, keyframe.T_c_w @ candidate.T_w_c))
+        graph_result, n_edges = self._optimise(edges, before)
+        return ClosedLoop(
+            keyframe=keyframe.id, candidate=candidate.id, frame=keyframe.frame_index,
+            candidate_frame=candidate.frame_index,
+            correction_m=float(np.linalg.norm(inverse(correction)[:3, 3])),
+            correction_deg=float(np.degrees(rotation_angle(correction[:3, :3]))),
+            fused=fused, graph_edges=n_edges, pose_graph=graph_result, ms=1e3 * (time.perf_counter() - start),
+        )
+
+    def _move_rigidly(self, group: list[int], T_new_old: np.ndarray) -> None:
+        """Step 1: move the keyframes ``group`` (ids) and their landmarks by one rigid correction.
+
+        ``T_new_old`` (4, 4) maps the first keyframe's old camera frame to its new one
+        (``T_c_w_new @ T_w_c_old``); each keyframe of the group keeps its pose relative to it.
+        """
+        first = self.map.keyframes[group[0]]
+        T_w_first_new = inverse(T_new_old @ first.T_c_w)
+        world_motion = T_w_first_new @ first.T_c_w  # T_w_new_w_old: the whole group moves by it
+        moved = {kind: np.zeros(len(kind), dtype=bool) for kind in self.map.kinds}
+        for keyframe_id in group:
+            keyframe = self.map.keyframes[keyframe_id]
+            for kind in self.map.kinds:
+                ids = getattr(keyframe, kind.IDS_FIELD)
+                ids = np.unique(ids[kind.live(ids)])
+                ids = ids[~moved[kind][ids]]
+                moved[kind][ids] = True
+                _transform_landmarks(kind, ids, world_motion)
+            keyframe.T_c_w = keyframe.T_c_w @ inverse(world_motion)
+
+    def _fuse(self, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck, group: list[int]) -> int:
+        """Step 2: join the two ends of the loop; returns the observations added or fused."""
+        fused = 0
+        found = check.tracking
+        for kind, loop_ids in zip(self.map.kinds, (found.point_ids, found.line_ids)):
+            features = np.flatnonzero(loop_ids >= 0)
+            own = getattr(keyframe, kind.IDS_FIELD)
+            for feature, landmark in zip(features.tolist(), loop_ids[features].tolist()):
+                if not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
+                    continue
+                existing = int(own[feature])
+                if existing >= 0 and kind.alive[existing]:
+                    self.map.replace_landmark(kind, existing, landmark)
+                else:
+                    self.map.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
+                fused += 1
+        loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
+        loop_side = (loop_side.points.ids, loop_side.lines.ids)
+        for keyframe_id in group:
+            for kind, ids in zip(self.map.kinds, loop_side):
+                fused += self._local_mapping.fuse(kind, self.map.keyframes[keyframe_id], ids)
+        for keyframe_id in group:
+            self.map.update_links(self.map.keyframes[keyframe_id])
+        return fused
+
+    def _optimise(self, edges: np.ndarray, before: dict[int, np.ndarray]) -> tuple[PoseGraphResult, int]:
+        """Steps 3 and 4: the pose graph, then every landmark with its reference keyframe."""
+        ids = np.array(sorted(self.map.keyframes), dtype=np.int64)
+        live = np.isin(edges, ids).all(axis=1)
+        edges = edges[live]
+        node = {k: n for n, k in enumerate(ids.tolist())}
+        edge_i = np.array([node[i] for i in edges[:, 0].tolist()], dtype=np.int64)
+        edge_j = np.array([node[j] for j in edges[:, 1].tolist()], dtype=np.int64)
+        old_poses = np.array([before[k] for k in ids.tolist()])
+        measured = relative_poses(old_poses, edge_i, edge_j)
+        loops = [edge for edge in self._loop_edges if edge.i in node and edge.j in node]
+        edge_i = np.concatenate([edge_i, [node[edge.i] for edge in loops]]).astype(np.int64)
+        edge_j = np.concatenate([edge_j, [node[edge.j] for edge in loops]]).astype(np.int64)
+        measured = np.concatenate([measured, np.array([edge.T_i_j for edge in loops]).reshape(-1, 4, 4)])
+        parent = np.array([
+            node.get(self.map.covisibility.parent[k], -1) if self.map.covisibility.parent[k] is not None else -1
+            for k in ids.tolist()
+        ], dtype=np.int64)
+        T_c_w = np.array([self.map.keyframes[k].T_c_w for k in ids.tolist()])
+        graph = PoseGraph(T_c_w=T_c_w, fixed=ids == ids.min(), edge_i=edge_i, edge_j=edge_j, T_i_j=measured,
+                          parent=parent)
+        result = optimize_pose_graph(graph, self._config.loop.pose_graph_max_nfev)
+        self._move_landmarks_with_keyframes(ids, T_c_w, result.T_c_w)
+        for n, keyframe_id in enumerate(ids.tolist()):
+            self.map.keyframes[keyframe_id].T_c_w = result.T_c_w[n]
+        return result, len(edge_i)
+
+    def _move_landmarks_with_keyframes(self, ids: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
+        """Step 4: each live landmark keeps its place in its reference keyframe's camera frame."""
+        motion = inverse(new) @ old  # per keyframe, T_w_new_w_old
+        row = {k: n for n, k in enumerate(ids.tolist())}
+        for kind in self.map.kinds:
+            landmarks = np.flatnonzero(kind.alive)
+            references = np.array([_reference_keyframe(kind, landmark, row) for landmark in landmarks.tolist()],
+                                  dtype=np.int64)
+            for reference in np.unique(references).tolist():
+                at = landmarks[references == reference]
+                _transform_landmarks(kind, at, motion[reference])
+
+
+def _reference_keyframe(kind: Landmarks, landmark: int, row: dict[int, int]) -> int:
+    """Row in ``row`` of a landmark's reference keyframe: its creator if live, else its first observer."""
+    creator = int(kind.first_keyframe[landmark])
+    if creator in row:
+        return row[creator]
+    return row[next(iter(kind.observers[landmark]))]
+
+
+def _transform_landmarks(kind: Landmarks, ids: np.ndarray, T_new_old: np.ndarray) -> None:
+    """Apply the world motion ``T_new_old`` (4, 4) to landmarks ``ids`` (K,) of ``kind``."""
+    if len(ids) == 0:
+        return
+    geometry = kind.geometry[ids]
+    kind.geometry[ids] = transform_points(T_new_old, geometry.reshape(-1, 3)).reshape(geometry.shape)
