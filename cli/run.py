@@ -42,6 +42,11 @@ def format_run_table(summary: dict) -> str:
             ("local BA ms (median / max)", number(mapping["local_ba"]["ms_median"], "{:.0f}", "")
              + " / " + number(mapping["local_ba"]["ms_max"], "{:.0f}", "")),
         ]
+    loop = summary["loop"]
+    if loop is not None:
+        rows.append(("loops closed (candidates)", f"{len(loop['loops'])} ({len(loop['candidates'])})"))
+        if loop["global_ba"] is not None:
+            rows.append(("global BA ms", number(loop["global_ba"]["ms"], "{:.0f}", "")))
     for kind in ("points", "lines"):
         quality = summary["dynamic"][kind]
         if quality["on_moving_objects"]:
@@ -50,7 +55,7 @@ def format_run_table(summary: dict) -> str:
     for stage in STAGES:
         timing = summary["timing_ms"].get(stage)
         if timing:
-            per = "keyframe" if stage == "mapping" else "frame"
+            per = "keyframe" if stage in ("mapping", "loop") else "frame"
             rows.append((f"{stage} ms/{per} (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
     return "\n".join(f"{label:<28}{value}" for label, value in rows)
 

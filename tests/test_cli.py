@@ -1,6 +1,7 @@
 """The ``pld-slam`` commands: output, JSON keys, exit codes and one-line errors."""
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -152,6 +153,7 @@ def test_run_writes_trajectories_summary_and_plot(synthetic_sequence, tmp_path):
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 4)
     assert result.exit_code == 0, result.output
     assert "ATE RMSE" in result.output and "total ms/frame" in result.output
+    assert "loop ms/keyframe" in result.output and re.search(r"loops closed \(candidates\) +0 \(0\)", result.output)
     kitti = read_kitti(out / "trajectory.kitti.txt")
     assert len(kitti) == 4 and np.allclose(kitti.poses[0], np.eye(4))
     assert len((out / "trajectory.tum.txt").read_text().splitlines()) == 4 + 1  # a '#' header line
