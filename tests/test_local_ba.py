@@ -39,7 +39,7 @@ from pld_slam.geometry.se3 import inverse, make_pose, se3_exp, so3_exp, so3_log,
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
-from pld_slam.mapping.map_ba import BaReport
+from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
 
 CONFIG = dataclasses.replace(Config(), mapping=dataclasses.replace(Config().mapping, local_ba_window=2))
 CORNER_NOISE_PX = 1.0 / 3.0
@@ -339,3 +339,14 @@ def test_a_map_whose_landmarks_are_each_seen_once_has_nothing_to_adjust():
     assert adjusted.report is None
     assert np.array_equal(made.world_map.keyframes[0].T_c_w, adjusted.poses_before[0])
     assert np.array_equal(made.world_map.points.geometry, adjusted.points_before)
+
+
+def test_the_first_keyframe_stays_fixed_even_with_other_keyframes_held():
+    """Keyframe 0 (the world frame) never moves, also when another keyframe anchors the problem."""
+    spec = {"A": ((0, 1, 2, 3), 60), "B": ((1, 2, 3), 30)}
+    made = build_map(seed=3, point_spec=spec, line_spec={"A": ((0, 1, 2, 3), 4)}, n_keyframes=4, exact_keyframes=())
+    before = {k: keyframe.T_c_w.copy() for k, keyframe in made.world_map.keyframes.items()}
+    report = adjust_keyframes(made.world_map, [0, 1, 3], CAMERA, CONFIG, max_nfev=10)
+    assert report.fixed_keyframes == 2 and report.free_keyframes == 2  # keyframe 2 (outside) and keyframe 0
+    assert np.array_equal(made.world_map.keyframes[0].T_c_w, before[0])
+    assert not np.array_equal(made.world_map.keyframes[1].T_c_w, before[1])

@@ -48,8 +48,11 @@ uint8 without widening, took 7.7 ms and 177 ms; ``cv2.absdiff`` + ``cv2.reduce``
 for 1,000). The distances are the same to the last bit: the per-cell sums are exact
 integers either way, and the mean over cells is the same float64 operation. `GgsDatabase`
 keeps the keyframes stacked, so that a query does not first copy them (``np.stack`` of
-1,000 descriptors: 0.7 ms). The first call of the process compiles the kernel (1 s), or
-loads it from numba's cache (``cache=True``, 0.4 s).
+1,000 descriptors: 0.7 ms). The first call of the process compiles the kernel (1 s).
+Numba's on-disk cache (``cache=True``, 0.4 s) is not used: it writes next to the source,
+into the installed package, which may be read-only, and which a reinstall then leaves
+behind as a folder without ``__init__.py`` that shadows the new install (a fresh
+``pip install .`` then ``pip install -e .`` could no longer import ``pld_slam``).
 """
 
 import cv2
@@ -190,7 +193,7 @@ class GgsDatabase:
         self._buffer, self._buffer_ids = buffer, buffer_ids
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True)
 def _best_pairing_cell_l1(query: np.ndarray, database: np.ndarray) -> np.ndarray:
     """Per cell, the least L1 distance over the four pairings: (N, C) uint16.
 
@@ -217,7 +220,7 @@ def _best_pairing_cell_l1(query: np.ndarray, database: np.ndarray) -> np.ndarray
     return best
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True)
 def _absolute_difference(a: np.uint8, b: np.uint8) -> np.uint8:
     """``|a - b|`` of two uint8, in uint8."""
     return np.uint8(max(a, b) - min(a, b))

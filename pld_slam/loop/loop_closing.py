@@ -7,7 +7,11 @@ passes; then the loop is corrected:
 
 1. The current keyframe takes the pose the geometric check found in the candidate's map,
    and its covisible neighbours move with it, rigidly (ORB-SLAM2's corrected Sim(3)s; SE(3)
-   here), with the landmarks they observe.
+   here), with the landmarks they observe. Only neighbours from the current side move
+   (ids after the candidate's plus ``loop.exclude_recent_keyframes``): near the end of a
+   loop, tracking may already have linked the current keyframe to a few keyframes of the
+   loop's start, and moving those with it moved the first keyframe by the whole
+   correction (synthetic block, seed 0: the start of the trajectory 0.15 m off).
 2. Fusion: each inlier of the check makes the current keyframe's feature observe the
    candidate's landmark (fused with the one it observed, if any), and the landmarks of the
    candidate's local map are projected into the moved keyframes and fused (ORB-SLAM2's
@@ -195,7 +199,8 @@ class LoopClosing:
         before = {k: frame.T_c_w.copy() for k, frame in self.map.keyframes.items()}
         edges = essential_edges(self.map, self._config.loop.pose_graph_min_shared_ratio)
         correction = check.T_c_w @ keyframe.T_w_c
-        group = [keyframe.id, *self.map.covisibility.neighbours(keyframe.id)]
+        group = [keyframe.id, *(k for k in self.map.covisibility.neighbours(keyframe.id)
+                                if k > candidate.id + self._config.loop.exclude_recent_keyframes)]
         self._move_rigidly(group, check.T_c_w @ keyframe.T_w_c)
         fused = self._fuse(keyframe, candidate, check, group)
         self._loop_edges.append(_LoopEdge(keyframe.id, candidate.id, keyframe.T_c_w @ candidate.T_w_c))
