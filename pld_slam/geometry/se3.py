@@ -13,6 +13,9 @@ _SMALL_ANGLE = 1e-8
 def hat(w: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix of a 3-vector, ``hat(w) @ v == cross(w, v)``: (3,) -> (3, 3), or (N, 3) -> (N, 3, 3)."""
     w = np.asarray(w, dtype=np.float64)
+    if w.ndim == 1:  # the common single vector, without the stacked path's overhead
+        wx, wy, wz = w
+        return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
     K = np.zeros((*w.shape[:-1], 3, 3))
     K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
     K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
@@ -27,6 +30,8 @@ def _angles(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _coefficient(theta: np.ndarray, small: np.ndarray, closed, series) -> np.ndarray:
     """``closed(theta)`` where the angle is not small, ``series(theta**2)`` where it is (...,)."""
+    if np.ndim(theta) == 0:  # one angle: a plain branch, cheaper than the masked stack below
+        return np.float64(series(float(theta) ** 2) if small else closed(float(theta)))
     safe = np.where(small, 1.0, theta)
     return np.where(small, series(theta * theta), closed(safe))
 

@@ -444,8 +444,8 @@ class _SparseProblem:
         evaluation = self._evaluate(y)
         twists = self._x_of(y)[: self._n_pose_unknowns].reshape(-1, 6)
         jac_pose = np.zeros_like(evaluation.jac_pose)  # the rows of fixed poses have no pose columns
-        for rows, twist, whitening in zip(self._free_rows, twists, self._pose_whitening):
-            jac_pose[rows] = evaluation.jac_pose[rows] @ (se3_left_jacobian(twist) @ whitening)
+        for rows, jacobian in zip(self._free_rows, se3_left_jacobian(twists) @ self._pose_whitening):
+            jac_pose[rows] = evaluation.jac_pose[rows] @ jacobian
         jac_landmark = np.einsum("ri,rij->rj", evaluation.jac_landmark, self._point_whitening[self._row_world_point])
         values = np.concatenate([jac_pose, jac_landmark], axis=1)[self._entries]
         return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
@@ -459,8 +459,7 @@ class _SparseProblem:
     def _state_at(self, x: np.ndarray) -> _State:
         T_c_w = self._start.T_c_w.copy()
         twists = x[: self._n_pose_unknowns].reshape(-1, 6)
-        for pose, twist in zip(self._free.tolist(), twists):
-            T_c_w[pose] = se3_exp(twist) @ self._start.T_c_w[pose]
+        T_c_w[self._free] = se3_exp(twists) @ self._start.T_c_w[self._free]
         shifts = x[self._n_pose_unknowns :].reshape(-1, 3)
         n_points = len(self._start.points_w)
         points_w = self._start.points_w + shifts[:n_points]
