@@ -42,10 +42,11 @@ accepted only when it passes every test, cheapest first:
    with ``T_i`` the current keyframe's pose found by the check, ``T_j`` the candidate's,
    the twist norm in metres and radians, and ``ratio_inl`` the check's inliers over its
    matches (the 50 % "initial" ratio is what a true loop is expected to reach; PnP's 300
-   RANSAC iterations cover it with 0.999 confidence, which needs 107). The discount is
-   small at alpha = 0.001 (2 % at 20 m): the test rejects above all a candidate whose
-   matches are mostly wrong, which is what perceptual aliasing produces (a repeated
-   facade matched by descriptor, fitting a pose with a few chance inliers).
+   RANSAC iterations cover it with 0.999 confidence, which needs 218 with OpenCV's 5-point
+   samples). The discount is small at alpha = 0.001 (2 % at 20 m): the test rejects
+   above all a candidate whose matches are mostly wrong, which is what perceptual
+   aliasing produces (a repeated facade matched by descriptor, fitting a pose with a few
+   chance inliers).
 """
 
 from dataclasses import dataclass
