@@ -34,7 +34,7 @@ import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, rotation_angle, transform_points
+from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.loop.ggs_detector import ggs_loop_candidates
 from pld_slam.loop.pose_graph import (
     PoseGraph,
@@ -46,6 +46,7 @@ from pld_slam.loop.pose_graph import (
 from pld_slam.loop.verify import (
     GeometricCheck,
     around,
+    correction_size,
     geometric_check,
     lc_rat,
     neighbourhood,
@@ -175,8 +176,7 @@ class LoopClosing:
                           motion=motion, lc_rat=score)
             correction = check.T_c_w @ keyframe.T_w_c
             drift = plausible_drift(correction, path_length(self.map, candidate.id, keyframe.id), config)
-            values["correction_m"] = float(np.linalg.norm(inverse(correction)[:3, 3]))
-            values["correction_deg"] = float(np.degrees(rotation_angle(correction[:3, :3])))
+            values["correction_m"], values["correction_deg"] = correction_size(correction)
             if check.inliers < config.min_inliers:
                 reason = "inliers"
             elif not drift:
@@ -198,30 +198,22 @@ class LoopClosing:
         start = time.perf_counter()
         before = {k: frame.T_c_w.copy() for k, frame in self.map.keyframes.items()}
         edges = essential_edges(self.map, self._config.loop.pose_graph_min_shared_ratio)
-        correction = check.T_c_w @ keyframe.T_w_c
+        correction_m, correction_deg = correction_size(check.T_c_w @ keyframe.T_w_c)
         group = [keyframe.id, *(k for k in self.map.covisibility.neighbours(keyframe.id)
                                 if k > candidate.id + self._config.loop.exclude_recent_keyframes)]
-        self._move_rigidly(group, check.T_c_w @ keyframe.T_w_c)
+        self._move_rigidly(group, inverse(check.T_c_w) @ keyframe.T_c_w)
         fused = self._fuse(keyframe, candidate, check, group)
         self._loop_edges.append(_LoopEdge(keyframe.id, candidate.id, keyframe.T_c_w @ candidate.T_w_c))
         graph_result, n_edges = self._optimise(edges, before)
         return ClosedLoop(
             keyframe=keyframe.id, candidate=candidate.id, frame=keyframe.frame_index,
-            candidate_frame=candidate.frame_index,
-            correction_m=float(np.linalg.norm(inverse(correction)[:3, 3])),
-            correction_deg=float(np.degrees(rotation_angle(correction[:3, :3]))),
+            candidate_frame=candidate.frame_index, correction_m=correction_m, correction_deg=correction_deg,
             fused=fused, graph_edges=n_edges, pose_graph=graph_result, ms=1e3 * (time.perf_counter() - start),
         )
 
-    def _move_rigidly(self, group: list[int], T_new_old: np.ndarray) -> None:
-        """Step 1: move the keyframes ``group`` (ids) and their landmarks by one rigid correction.
-
-        ``T_new_old`` (4, 4) maps the first keyframe's old camera frame to its new one
-        (``T_c_w_new @ T_w_c_old``); each keyframe of the group keeps its pose relative to it.
-        """
-        first = self.map.keyframes[group[0]]
-        T_w_first_new = inverse(T_new_old @ first.T_c_w)
-        world_motion = T_w_first_new @ first.T_c_w  # T_w_new_w_old: the whole group moves by it
+    def _move_rigidly(self, group: list[int], world_motion: np.ndarray) -> None:
+        """Step 1: move the keyframes ``group`` (ids) and their landmarks by one rigid motion of the
+        world, ``world_motion`` (4, 4) ``T_w_new_w_old``; the keyframes keep their relative poses."""
         moved = {kind: np.zeros(len(kind), dtype=bool) for kind in self.map.kinds}
         for keyframe_id in group:
             keyframe = self.map.keyframes[keyframe_id]
@@ -264,18 +256,15 @@ class LoopClosing:
         live = np.isin(edges, ids).all(axis=1)
         edges = edges[live]
         node = {k: n for n, k in enumerate(ids.tolist())}
-        edge_i = np.array([node[i] for i in edges[:, 0].tolist()], dtype=np.int64)
-        edge_j = np.array([node[j] for j in edges[:, 1].tolist()], dtype=np.int64)
         old_poses = np.array([before[k] for k in ids.tolist()])
-        measured = relative_poses(old_poses, edge_i, edge_j)
         loops = [edge for edge in self._loop_edges if edge.i in node and edge.j in node]
-        edge_i = np.concatenate([edge_i, [node[edge.i] for edge in loops]]).astype(np.int64)
-        edge_j = np.concatenate([edge_j, [node[edge.j] for edge in loops]]).astype(np.int64)
-        measured = np.concatenate([measured, np.array([edge.T_i_j for edge in loops]).reshape(-1, 4, 4)])
-        parent = np.array([
-            node.get(self.map.covisibility.parent[k], -1) if self.map.covisibility.parent[k] is not None else -1
-            for k in ids.tolist()
-        ], dtype=np.int64)
+        loop_ends = np.array([(edge.i, edge.j) for edge in loops], dtype=np.int64).reshape(-1, 2)
+        edge_i, edge_j = np.searchsorted(ids, np.concatenate([edges, loop_ends])).T
+        measured = np.concatenate([
+            relative_poses(old_poses, edge_i[: len(edges)], edge_j[: len(edges)]),
+            np.array([edge.T_i_j for edge in loops]).reshape(-1, 4, 4),
+        ])
+        parent = np.array([node.get(self.map.covisibility.parent[k], -1) for k in ids.tolist()], dtype=np.int64)
         T_c_w = np.array([self.map.keyframes[k].T_c_w for k in ids.tolist()])
         graph = PoseGraph(T_c_w=T_c_w, fixed=ids == ids.min(), edge_i=edge_i, edge_j=edge_j, T_i_j=measured,
                           parent=parent)

@@ -141,6 +141,13 @@ _LSMR_MAX_ITERATIONS = 30
 conditioned (a loop edge adds a rank-6 coupling to a near block-diagonal Jacobian)."""
 
 
+def _free_columns(fixed: np.ndarray) -> np.ndarray:
+    """Per node (N,), its index among the free nodes (N,) bool ``~fixed`` in order, -1 for a fixed one."""
+    column = np.full(len(fixed), -1)
+    column[~fixed] = np.arange(np.count_nonzero(~fixed))
+    return column
+
+
 class _TreeUpdates:
     """The solver's unknowns: per free node ``a``, a rigid motion ``y_a`` (6,) of it and its subtree,
     expressed in its own camera frame, so that it turns the subtree about the node itself
@@ -156,9 +163,7 @@ class _TreeUpdates:
 
     def __init__(self, graph: PoseGraph) -> None:
         free = np.flatnonzero(~graph.fixed)
-        column = np.full(len(graph.fixed), -1)
-        column[free] = np.arange(len(free))
-        self._column, self._free = column, free
+        column = _free_columns(graph.fixed)
         self.size = 6 * len(free)
         parent = graph.parent[free]
         has_parent = (parent >= 0) & (column[np.maximum(parent, 0)] >= 0)
@@ -192,8 +197,7 @@ class _GraphProblem:
 
     def __init__(self, graph: PoseGraph) -> None:
         self._graph = graph
-        self._column = np.full(len(graph.fixed), -1)
-        self._column[~graph.fixed] = np.arange(np.count_nonzero(~graph.fixed))
+        self._column = _free_columns(graph.fixed)
         self._n_free = int(np.count_nonzero(~graph.fixed))
 
     def _deltas(self, x: np.ndarray) -> np.ndarray:

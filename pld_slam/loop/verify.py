@@ -60,7 +60,13 @@ from pld_slam.geometry.se3 import inverse, rotation_angle, se3_log
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
-from pld_slam.tracking.local_map import LocalMapTracking, ReferenceMatches, local_map_of, track_local_map
+from pld_slam.tracking.local_map import (
+    LocalMapTracking,
+    ReferenceMatches,
+    local_map_of,
+    observed_landmarks,
+    track_local_map,
+)
 from pld_slam.tracking.relocalisation import pose_without_prior
 
 
@@ -141,11 +147,7 @@ def around(world_map: Map, keyframe: KeyFrame) -> tuple[int, ...]:
 
 def present_landmarks(world_map: Map, keyframe: KeyFrame) -> tuple[np.ndarray, np.ndarray]:
     """The live point and line ids observed by ``keyframe`` and its covisible neighbours."""
-    ids = []
-    for kind in world_map.kinds:
-        seen = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in around(world_map, keyframe)])
-        ids.append(np.unique(seen[kind.live(seen)]))
-    return ids[0], ids[1]
+    return observed_landmarks(world_map, around(world_map, keyframe))
 
 
 def path_length(world_map: Map, first: int, last: int) -> float:
@@ -155,10 +157,14 @@ def path_length(world_map: Map, first: int, last: int) -> float:
     return float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
 
 
+def correction_size(correction: np.ndarray) -> tuple[float, float]:
+    """How far [m] and how much [deg] a correction ``T_c_new_c_old`` (4, 4) moves and turns a keyframe."""
+    return float(np.linalg.norm(correction[:3, 3])), float(np.degrees(rotation_angle(correction[:3, :3])))
+
+
 def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> bool:
     """Whether a keyframe's correction ``T_c_new_c_old`` (4, 4) could be drift over ``path`` [m] (module docstring)."""
-    translation = float(np.linalg.norm(correction[:3, 3]))
-    angle = float(np.degrees(rotation_angle(correction[:3, :3])))
+    translation, angle = correction_size(correction)
     return translation <= config.max_drift_ratio * path + 1.0 and angle <= config.max_drift_deg
 
 

@@ -1,8 +1,9 @@
 """Global bundle adjustment (paper, section "Loop correction": "when the system is finished, we
 implemented the global BA to optimize all the keyframe pose and global map landmark state").
 
-Every live keyframe is free but the first (the gauge, as ORB-SLAM2's global BA holds
-keyframe 0), with every landmark seen by at least two keyframes; the residuals, loss,
+Every live keyframe is free but the first (the gauge `pld_slam.mapping.map_ba` always
+holds, as ORB-SLAM2's global BA holds keyframe 0), with every landmark seen by at least
+two keyframes; the residuals, loss,
 rounds and outlier removal are local BA's (`pld_slam.mapping.map_ba`), with
 ``optimize.global_ba_max_nfev`` evaluations per solve.
 """
@@ -15,7 +16,6 @@ from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
 
 def global_bundle_adjustment(world_map: Map, camera: StereoCamera, config: Config) -> BaReport | None:
     """Bundle-adjust the whole map, its first keyframe held fixed; None with nothing to adjust."""
-    free = sorted(world_map.keyframes)[1:]
-    if not free:
+    if len(world_map.keyframes) < 2:
         return None
-    return adjust_keyframes(world_map, free, camera, config, config.optimize.global_ba_max_nfev)
+    return adjust_keyframes(world_map, sorted(world_map.keyframes), camera, config, config.optimize.global_ba_max_nfev)

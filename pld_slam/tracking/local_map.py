@@ -221,14 +221,21 @@ def local_map_of(world_map: Map, keyframes: tuple[int, ...], excluded: tuple[np.
     """The live landmarks ``keyframes`` (ids, the reference first) observe, but the point and line ids
     ``excluded`` (two int arrays; None for none)."""
     snapshots = []
-    for n, kind in enumerate(world_map.kinds):
-        ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
-        ids = np.unique(ids[ids >= 0])
-        ids = ids[kind.alive[ids]]
+    for n, (kind, ids) in enumerate(zip(world_map.kinds, observed_landmarks(world_map, keyframes))):
         if excluded is not None:
             ids = np.setdiff1d(ids, excluded[n])
         snapshots.append(LandmarkSnapshot.of(kind, ids))
     return LocalMap(tuple(keyframes), *snapshots)
+
+
+def observed_landmarks(world_map: Map, keyframes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The live point and line ids (ascending) observed by any of ``keyframes`` (ids)."""
+    observed = []
+    for kind in world_map.kinds:
+        ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
+        ids = np.unique(ids[ids >= 0])
+        observed.append(ids[kind.alive[ids]])
+    return observed[0], observed[1]
 
 
 def match_map_points(
