@@ -14,8 +14,10 @@ from pld_slam.errors import PldSlamError
 from pld_slam_cli.config import config_command
 from pld_slam_cli.demo import demo_command
 from pld_slam_cli.evaluate import eval_command
+from pld_slam_cli.places import places_command
 from pld_slam_cli.run import run_command
 from pld_slam_cli.synth import synth_command
+from pld_slam_cli.vocabulary import vocabulary_command
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
@@ -62,6 +64,8 @@ cli.add_command(demo_command)
 cli.add_command(synth_command)
 cli.add_command(eval_command)
 cli.add_command(config_command)
+cli.add_command(places_command)
+cli.add_command(vocabulary_command)
 
 
 def main() -> None:

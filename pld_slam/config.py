@@ -274,6 +274,12 @@ class LoopConfig:
     detector: Literal["ggs", "bow", "none"] = _param(
         "ggs", "place recognition: GGS (paper), bag of words (rival) or none (no loop closure)"
     )
+    vocabulary: str = _param(
+        "", "vocabulary file of the bow detector (`pld-slam vocabulary build ... --out vocab.npz`); empty: none"
+    )
+    bow_consistency: int = _param(
+        3, "bow: consecutive keyframes whose candidate groups must overlap (ORB-SLAM2's group consistency)", 0
+    )
     exclude_recent_keyframes: int = _param(
         20, "the keyframes inserted just before a new one are never its loop candidates", 0
     )
@@ -325,13 +331,17 @@ def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, valu
     """Return ``value`` converted to the field's type ``kind``, or raise `ConfigError`.
 
     Accepted: bool only for bool (YAML ``true``/``false``); int for int (not bool); int or
-    float for float; one of the listed strings for a Literal.
+    float for float; one of the listed strings for a Literal; a string for str.
     """
     got = f"{type(value).__name__} {value!r}"
     if typing.get_origin(kind) is Literal:
         choices = typing.get_args(kind)
         if value not in choices:
             raise ConfigError(f"{where}: {name} must be one of {', '.join(choices)}, got {value!r}")
+        return value
+    if kind is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: {name} must be a string, got {got}")
         return value
     if kind is bool:
         if not isinstance(value, bool):

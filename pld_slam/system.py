@@ -128,9 +128,6 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
-        if config.loop.detector == "bow":
-            raise ConfigError("loop.detector: bow is not available yet (the vocabulary is still being built); "
-                              "use --set loop.detector=ggs or none")
         world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
         self.local_mapping = None if world_map is None else LocalMapping(world_map, sequence.camera, config)
         self.loop_closing = None

@@ -1,14 +1,17 @@
-"""GGS loop candidates on a constructed map, and the verification tests on constructed values."""
+"""Loop candidates of both detectors on constructed maps, and the verification tests on constructed values."""
 
 import cv2
 import numpy as np
-from map_fixtures import make_keyframe, random_descriptors, scene_points, simple_features
+import pytest
+from map_fixtures import camera_features, make_keyframe, random_descriptors, scene_points, simple_features
 
 from pld_slam.config import GgsConfig, LoopConfig
 from pld_slam.frontend.ggs import ggs_descriptor
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
-from pld_slam.loop.ggs_detector import ggs_loop_candidates
+from pld_slam.loop.bow_detector import BowDatabase, BowDetector
+from pld_slam.loop.ggs_detector import GgsDetector, ggs_loop_candidates
 from pld_slam.loop.verify import lc_rat, plausible_drift
+from pld_slam.loop.vocabulary import bow_score, build_vocabulary
 from pld_slam.mapping.map import Map
 
 WIDTH, STEP = 160, 12
@@ -52,6 +55,86 @@ def test_a_new_place_next_to_the_last_one_has_no_candidate():
     world_map = corridor_map(list(range(31)))
     found = ggs_loop_candidates(world_map, world_map.keyframes[30], CONFIG)
     assert len(found.keyframes) == 0
+
+
+def test_the_ggs_detector_checks_the_neighbourhood_of_a_revisit():
+    places = [*range(30), 3]
+    world_map = corridor_map(places)
+    detections = GgsDetector(world_map, CONFIG).detect(world_map.keyframes[30])
+    assert detections[0].candidate == 3 and detections[0].consistent
+    assert np.isnan(detections[0].consistency)
+
+
+# Bag of words: the keyframe at place p sees the descriptors of segments p and p + 1 of a
+# long street (30 each), with a few bits flipped; neighbours share a segment.
+SEGMENT = 30
+
+
+def segment_descriptors(segment: int) -> np.ndarray:
+    return random_descriptors(SEGMENT, seed=500 + segment)
+
+
+def flipped(descriptors: np.ndarray, seed: int) -> np.ndarray:
+    bits = np.random.default_rng(seed).random((len(descriptors), 256)) < 0.01
+    return descriptors ^ np.packbits(bits, axis=1)
+
+
+def street_vocabulary(n_segments: int):
+    training = [flipped(segment_descriptors(s), seed=900 + s) for s in range(n_segments)]
+    return build_vocabulary(training, branching=8, depth=3, seed=0)
+
+
+def street_map(places: list[int]) -> Map:
+    """Keyframe k at street place ``places[k]``; each shares 20 landmarks with the next."""
+    world_map = Map(covisibility_min_shared=20)
+    n = len(places)
+    world_map.points.add(scene_points(20 * (n + 1), 1), random_descriptors(20 * (n + 1), 2), 0)
+    for k, place in enumerate(places):
+        descriptors = flipped(np.concatenate([segment_descriptors(place), segment_descriptors(place + 1)]), seed=k)
+        rng = np.random.default_rng(k)
+        points_c = np.column_stack([rng.uniform(-2, 2, 2 * SEGMENT), rng.uniform(-1, 1, 2 * SEGMENT),
+                                    rng.uniform(5, 15, 2 * SEGMENT)])
+        point_ids = np.concatenate([np.arange(20 * k, 20 * k + 40), np.full(2 * SEGMENT - 40, -1)])
+        world_map.add_keyframe(make_keyframe(k, camera_features(points_c, descriptors), point_ids=point_ids))
+    return world_map
+
+
+def bow_detections(places: list[int]) -> list[list]:
+    """Every keyframe's BoW detections, keyframes looked up in order."""
+    world_map = street_map(places)
+    detector = BowDetector(world_map, street_vocabulary(max(places) + 2), CONFIG)
+    return [detector.detect(world_map.keyframes[k]) for k in range(len(places))]
+
+
+def test_bow_finds_a_revisit_once_it_is_group_consistent():
+    places = [*range(30), 3, 4, 5, 6]
+    detections = bow_detections(places)
+    assert all(not d.consistent for found in detections[:30] for d in found)
+    revisit = detections[30:]
+    assert all(found and abs(places[found[0].candidate] - places[30 + n]) <= 1 for n, found in enumerate(revisit))
+    assert [found[0].consistency for found in revisit] == [0, 1, 2, 3]
+    assert revisit[-1][0].consistent and not revisit[-2][0].consistent
+    assert all(d.score >= d.bar for found in revisit for d in found)
+
+
+def test_bow_rejects_a_single_aliased_keyframe():
+    detections = bow_detections([*range(30), 3, 40, 41, 42])
+    assert detections[30] and detections[30][0].candidate == 3  # looks like a revisit...
+    assert not any(d.consistent for found in detections for d in found)  # ...but no group follows it
+
+
+def test_the_inverse_index_scores_as_the_pairwise_l1_score():
+    vocabulary = street_vocabulary(12)
+    vectors = [vocabulary.bow_vector(flipped(segment_descriptors(s), seed=s)) for s in range(10)]
+    database = BowDatabase()
+    for k, vector in enumerate(vectors):
+        database.add(k, vector)
+    query = vocabulary.bow_vector(np.concatenate([segment_descriptors(4), segment_descriptors(5)]))
+    ids, shared, scores = database.query(query)
+    for k, n_shared, score in zip(ids, shared, scores):
+        assert score == pytest.approx(bow_score(query, vectors[k]))
+        assert n_shared == len(np.intersect1d(query.words, vectors[k].words))
+    assert set(ids[np.argsort(-scores)[:2]]) == {4, 5}
 
 
 def test_lc_rat_is_the_inlier_ratio_discounted_by_the_motion():

@@ -16,12 +16,22 @@ import pytest
 
 from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.errors import ConfigError
+from pld_slam.errors import ConfigError, PldSlamError
 from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
-from pld_slam.io.run_output import PLOT, SUMMARY, TRAJECTORY_KITTI, TRAJECTORY_TUM, write_run_outputs
+from pld_slam.io.run_output import (
+    LOOP_COLUMNS,
+    LOOPS,
+    PLOT,
+    SUMMARY,
+    TRAJECTORY_KITTI,
+    TRAJECTORY_TUM,
+    write_run_outputs,
+)
 from pld_slam.io.trajectory import read_kitti
+from pld_slam.loop.vocabulary import build_vocabulary
+from pld_slam.loop.vocabulary_training import training_descriptors
 from pld_slam.synth import write_sequence
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackingStatus
@@ -215,7 +225,7 @@ def test_the_outputs_of_an_interrupted_run_hold_its_frames_and_say_it_did_not_co
     out = tmp_path / "run"
     written = write_run_outputs(out, result.trajectory(), summary, sequence.groundtruth, "interrupted")
 
-    assert {p.name for p in written} == {TRAJECTORY_KITTI, TRAJECTORY_TUM, SUMMARY, PLOT}
+    assert {p.name for p in written} == {TRAJECTORY_KITTI, TRAJECTORY_TUM, SUMMARY, LOOPS, PLOT}
     kitti_rows = (out / TRAJECTORY_KITTI).read_text().splitlines()
     assert len(kitti_rows) == k
     np.testing.assert_allclose(read_kitti(out / TRAJECTORY_KITTI).poses, result.trajectory().poses, atol=1e-8)
@@ -308,7 +318,10 @@ def test_the_summary_of_a_whole_run(sequence, config, full_run):
 
 def test_the_summary_lists_loop_candidates_and_the_final_global_ba(sequence, config, full_run):
     loop = summarise_run(sequence, full_run, config)["loop"]
+    assert loop["detector"] == "ggs"
     assert loop["candidates"] == [] and loop["loops"] == []  # a short straight drive: nothing to close
+    truth = loop["ground_truth"]
+    assert truth["revisits"] == 0 and truth["recall"] is None and truth["precision"] is None
     assert loop["global_ba"]["keyframes"] == len(full_run.map.keyframes)
     assert loop["global_ba"]["points"] > 0
 
@@ -322,10 +335,30 @@ def test_global_ba_moves_the_keyframes_only_at_the_end(sequence, config):
     assert not np.allclose(without.trajectory().poses, with_ba.trajectory().poses, atol=1e-9)
 
 
-def test_the_bag_of_words_detector_is_a_clear_error_until_it_exists(sequence, config):
+def test_the_bag_of_words_detector_needs_a_vocabulary(sequence, config, tmp_path):
     bow = dataclasses.replace(config, loop=dataclasses.replace(config.loop, detector="bow"))
-    with pytest.raises(ConfigError, match="loop.detector: bow is not available yet"):
+    with pytest.raises(ConfigError, match="needs a vocabulary.*pld-slam vocabulary build"):
         System(sequence, bow)
+    missing = dataclasses.replace(bow, loop=dataclasses.replace(bow.loop, vocabulary=str(tmp_path / "v.npz")))
+    with pytest.raises(PldSlamError, match="v.npz: no such vocabulary file"):
+        System(sequence, missing)
+
+
+def test_a_bag_of_words_run_indexes_every_keyframe_and_writes_loops_csv(folder, sequence, config, tmp_path):
+    vocabulary = build_vocabulary(training_descriptors([folder], config.points, every=3), branching=6, depth=3)
+    vocabulary.save(tmp_path / "v.npz")
+    bow = dataclasses.replace(config, loop=dataclasses.replace(config.loop, detector="bow",
+                                                               vocabulary=str(tmp_path / "v.npz")))
+    system = System(sequence, bow)
+    result = system.run()
+    detector = system.loop_closing.detector
+    assert sorted(detector.vectors) == [k for k, _ in system.loop_closing.queries]
+    assert len(detector.vectors) >= len(result.map.keyframes) > 1
+    summary = summarise_run(sequence, result, bow)
+    assert summary["loop"]["detector"] == "bow"
+    written = write_run_outputs(tmp_path / "out", result.trajectory(), summary, sequence.groundtruth, "bow")
+    assert (tmp_path / "out" / LOOPS) in written
+    assert (tmp_path / "out" / LOOPS).read_text().splitlines()[0] == ",".join(LOOP_COLUMNS)
 
 
 def test_a_sequence_without_ground_truth_has_null_accuracy(folder, tmp_path, config):

@@ -6,6 +6,7 @@ needs a display and never touches the global pyplot state of the caller.
 
 from pathlib import Path
 
+import numpy as np
 from matplotlib.figure import Figure
 
 from pld_slam.eval.metrics import associate, ate_errors, fit_alignment
@@ -28,6 +29,7 @@ def plot_trajectory_top_view(
     align: str = "se3",
     by_index: bool = False,
     max_diff: float = 0.01,
+    loop_edges: np.ndarray | None = None,
 ) -> None:
     """Write the x-z plane (seen from above) of the estimate and ground truth as a PNG.
 
@@ -36,7 +38,8 @@ def plot_trajectory_top_view(
     forward pointing up the page. The whole estimate is moved by the same alignment as
     the ATE (`fit_alignment` on the matched poses; ``align``, ``by_index`` and
     ``max_diff`` as in `pld_slam.eval.metrics.evaluate`). Without ground truth the
-    estimate is drawn as it is.
+    estimate is drawn as it is. ``loop_edges`` (K, 2): timestamps [s] of the two ends of
+    each closed loop, drawn as red segments between the estimate's nearest poses.
     """
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
@@ -48,6 +51,9 @@ def plot_trajectory_top_view(
     est_xz = estimate.positions[:, [0, 2]]
     axes.plot(est_xz[:, 0], est_xz[:, 1], "b-", label="estimate")
     axes.plot(est_xz[0, 0], est_xz[0, 1], "go", label="start")
+    for n, ends in enumerate(np.zeros((0, 2)) if loop_edges is None else loop_edges):
+        rows = np.abs(estimate.timestamps[None, :] - np.asarray(ends)[:, None]).argmin(axis=1)
+        axes.plot(est_xz[rows, 0], est_xz[rows, 1], "r-o", markersize=3, label="loop" if n == 0 else None)
     axes.set_aspect("equal", adjustable="datalim")
     axes.set_xlabel("x [m] (right)")
     axes.set_ylabel("z [m] (forward)")

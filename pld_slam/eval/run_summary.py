@@ -15,7 +15,9 @@ from pld_slam.config import Config, config_to_dict
 from pld_slam.datasets import StereoSequence
 from pld_slam.errors import TrajectoryError
 from pld_slam.eval.dynamic_labels import LabelCounts
+from pld_slam.eval.loop_truth import score_loops
 from pld_slam.eval.metrics import EvalResult, evaluate
+from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.system import STAGES, RunResult
 from pld_slam.tracking.tracker import TrackingStatus
 from pld_slam.trajectory import Trajectory
@@ -139,19 +141,24 @@ def mapping_summary(result: RunResult) -> dict | None:
     }
 
 
-def loop_summary(result: RunResult) -> dict | None:
+def loop_summary(result: RunResult, config: Config, groundtruth: Trajectory | None) -> dict | None:
     """What loop closing and global BA did; None without a loop stage (no map, or ``loop.detector: none``).
 
-    ``candidates``: every verified candidate (query and candidate keyframe and frame, GGS
-    distance and bar, each test's value, NaN written as null where not reached, accepted or
-    the test it failed, `pld_slam.loop.loop_closing.LoopCandidate`); ``loops``: the closed
-    loops with their correction, fusion and pose-graph solve; ``global_ba``: the final BA.
+    ``detector``: ``loop.detector``; ``candidates``: every candidate (query and candidate
+    keyframe, frame and time, the detector's score and bar, each test's value, NaN written
+    as null where not reached, accepted or the test it failed,
+    `pld_slam.loop.loop_closing.LoopCandidate`); ``loops``: the closed loops with their
+    correction, fusion and pose-graph solve; ``ground_truth``: precision and recall against
+    the ground truth (`pld_slam.eval.loop_truth`, null without one); ``global_ba``: the
+    final BA.
     """
     loop_closing = result.loop_closing
     if loop_closing is None:
         return None
     ba = result.global_ba
     return {
+        "detector": config.loop.detector,
+        "ground_truth": None if groundtruth is None else loop_truth(loop_closing, groundtruth, config),
         "candidates": [_json_ready(dataclasses.asdict(c)) for c in loop_closing.candidates],
         "loops": [
             {
@@ -172,6 +179,17 @@ def loop_summary(result: RunResult) -> dict | None:
 def _json_ready(values: dict) -> dict:
     """``values`` with NaN floats as None (JSON has no NaN)."""
     return {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in values.items()}
+
+
+def loop_truth(loop_closing: LoopClosing, groundtruth: Trajectory, config: Config) -> dict | None:
+    """The run's loop closing scored against ground truth (`pld_slam.eval.loop_truth`); None before any query."""
+    if not loop_closing.queries:
+        return None
+    ids, times = np.array(loop_closing.queries).T
+    candidates = np.array([(c.keyframe, c.candidate) for c in loop_closing.candidates], dtype=np.int64)
+    loops = np.array([(loop.keyframe, loop.candidate) for loop in loop_closing.loops], dtype=np.int64)
+    return score_loops(groundtruth, ids.astype(np.int64), times, candidates, loops,
+                       config.loop.exclude_recent_keyframes).as_dict()
 
 
 def _median_or_none(values: list[int]) -> float | None:
@@ -212,7 +230,7 @@ def summarise_run(
             "map_line_inliers": _median_or_none([r.counts.map_line_inliers for r in records[1:]]),
         },
         "mapping": mapping_summary(result),
-        "loop": loop_summary(result),
+        "loop": loop_summary(result, config, sequence.groundtruth),
         "dynamic": dynamic_summary(result),
         "config": config_to_dict(config),
         "config_sources": None if config_sources is None else list(config_sources),

@@ -1,9 +1,11 @@
 """`LoopClosing`: detect, verify and correct loops, one new keyframe at a time (ORB-SLAM2's
 ``LoopClosing::Run``, inline after local mapping).
 
-For each new keyframe: its GGS candidates (`pld_slam.loop.ggs_detector`), each verified
-(`pld_slam.loop.verify`: neighbourhood, geometric check, drift gate, lc_rat) until one
-passes; then the loop is corrected:
+For each new keyframe: its candidates from the configured detector (``loop.detector``:
+`pld_slam.loop.ggs_detector`, the paper's, or `pld_slam.loop.bow_detector`, the
+bag-of-words rival), each that passed its detector's consistency test verified
+(`pld_slam.loop.verify`: geometric check, drift gate, lc_rat), at most ``loop.candidates``,
+until one passes; then the loop is corrected:
 
 1. The current keyframe takes the pose the geometric check found in the candidate's map,
    and its covisible neighbours move with it, rigidly (ORB-SLAM2's corrected Sim(3)s; SE(3)
@@ -33,9 +35,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.config import Config
+from pld_slam.errors import ConfigError
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, transform_points
-from pld_slam.loop.ggs_detector import ggs_loop_candidates
+from pld_slam.loop.bow_detector import BowDetector
+from pld_slam.loop.detection import Detection, LoopDetector
+from pld_slam.loop.ggs_detector import GgsDetector
 from pld_slam.loop.pose_graph import (
     PoseGraph,
     PoseGraphResult,
@@ -49,12 +54,12 @@ from pld_slam.loop.verify import (
     correction_size,
     geometric_check,
     lc_rat,
-    neighbourhood,
     path_length,
     plausible_drift,
     present_landmarks,
     relative_motion,
 )
+from pld_slam.loop.vocabulary import Vocabulary
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.local_mapping import LocalMapping
@@ -69,26 +74,30 @@ class LoopCandidate:
 
     Attributes
     ----------
-    keyframe, frame : the query keyframe's id and frame index.
-    candidate, candidate_frame : the candidate's.
-    ggs_distance, bar : their GGS distance and the bar it passed (`pld_slam.loop.ggs_detector`).
-    previous_distance, neighbour_distance : stage 2 (`pld_slam.loop.verify.Neighbourhood`).
+    keyframe, frame, time : the query keyframe's id, frame index and timestamp [s].
+    candidate, candidate_frame, candidate_time : the candidate's.
+    score, bar, previous_distance, neighbour_distance, consistency : the detector's
+        (`pld_slam.loop.detection.Detection`).
     matches, inliers, inlier_ratio, motion, lc_rat : the geometric check and stage 1 (NaN
         where not reached).
     correction_m, correction_deg : the correction the loop would make to the keyframe.
     accepted : whether the loop was closed with it.
-    reason : ``"accepted"`` or the test it failed (``"neighbourhood"``, ``"pnp"``,
-        ``"inliers"``, ``"drift"``, ``"lc_rat"``).
+    reason : ``"accepted"``, the test it failed (``"consistency"``, the detector's; ``"pnp"``,
+        ``"inliers"``, ``"drift"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but
+        ``loop.candidates`` others were verified first).
     """
 
     keyframe: int
     frame: int
+    time: float
     candidate: int
     candidate_frame: int
-    ggs_distance: float
+    candidate_time: float
+    score: float
     bar: float
     previous_distance: float
     neighbour_distance: float
+    consistency: float
     matches: float
     inliers: float
     inlier_ratio: float
@@ -132,6 +141,7 @@ class LoopClosing:
 
     def __init__(self, world_map: Map, local_mapping: LocalMapping, camera: StereoCamera, config: Config) -> None:
         self.map = world_map
+        self.detector = make_detector(world_map, config)
         self._local_mapping = local_mapping
         self._camera = camera
         self._config = config
@@ -143,30 +153,34 @@ class LoopClosing:
         """Every candidate verified so far."""
         self.loops: list[ClosedLoop] = []
         """Every loop closed so far."""
+        self.queries: list[tuple[int, float]] = []
+        """Every keyframe looked up for a loop: id and timestamp [s]."""
 
     def process(self, keyframe: KeyFrame) -> ClosedLoop | None:
         """Look for a loop of ``keyframe`` (just inserted, after local mapping) and close the first verified one."""
-        found = ggs_loop_candidates(self.map, keyframe, self._config.loop)
-        for candidate_id, distance in zip(found.keyframes.tolist(), found.distances.tolist()):
-            candidate = self.map.keyframes[candidate_id]
-            record, check = self._verify(keyframe, candidate, distance, found.bar)
+        self.queries.append((keyframe.id, keyframe.timestamp))
+        closed = None
+        verified = 0
+        for detection in self.detector.detect(keyframe):
+            candidate = self.map.keyframes[detection.candidate]
+            verify = closed is None and detection.consistent and verified < self._config.loop.candidates
+            verified += verify
+            record, check = self._verify(keyframe, candidate, detection, verify)
             self.candidates.append(record)
             if check is not None:
-                loop = self._close(keyframe, candidate, check)
-                self.loops.append(loop)
-                return loop
-        return None
+                closed = self._close(keyframe, candidate, check)
+                self.loops.append(closed)
+        return closed
 
     def _verify(
-        self, keyframe: KeyFrame, candidate: KeyFrame, distance: float, bar: float
+        self, keyframe: KeyFrame, candidate: KeyFrame, detection: Detection, verify: bool
     ) -> tuple[LoopCandidate, GeometricCheck | None]:
-        """The candidate's record, and its geometric check when it passed every test (None otherwise)."""
+        """The candidate's record, and its geometric check when it was verified and passed every test."""
         config = self._config.loop
-        stage_2 = neighbourhood(self.map, keyframe, candidate)
         values = dict(matches=np.nan, inliers=np.nan, inlier_ratio=np.nan, motion=np.nan, lc_rat=np.nan,
                       correction_m=np.nan, correction_deg=np.nan)
-        check, reason = None, "neighbourhood"
-        if stage_2.passes(bar):
+        check, reason = None, "consistency" if not detection.consistent else "not verified"
+        if verify:
             check = geometric_check(self.map, keyframe, candidate, self._camera, self._config, self._pose_options)
             reason = "pnp"
         if check is not None:
@@ -186,10 +200,11 @@ class LoopClosing:
             else:
                 reason = "accepted"
         record = LoopCandidate(
-            keyframe=keyframe.id, frame=keyframe.frame_index, candidate=candidate.id,
-            candidate_frame=candidate.frame_index, ggs_distance=distance, bar=bar,
-            previous_distance=stage_2.previous_distance, neighbour_distance=stage_2.neighbour_distance,
-            accepted=reason == "accepted", reason=reason, **values,
+            keyframe=keyframe.id, frame=keyframe.frame_index, time=keyframe.timestamp, candidate=candidate.id,
+            candidate_frame=candidate.frame_index, candidate_time=candidate.timestamp, score=detection.score,
+            bar=detection.bar,
+            previous_distance=detection.previous_distance, neighbour_distance=detection.neighbour_distance,
+            consistency=detection.consistency, accepted=reason == "accepted", reason=reason, **values,
         )
         return record, check if record.accepted else None
 
@@ -285,6 +300,18 @@ class LoopClosing:
             for reference in np.unique(references).tolist():
                 at = landmarks[references == reference]
                 _transform_landmarks(kind, at, motion[reference])
+
+
+def make_detector(world_map: Map, config: Config) -> LoopDetector:
+    """The detector ``loop.detector`` names; bag of words reads the vocabulary ``loop.vocabulary``."""
+    if config.loop.detector != "bow":
+        return GgsDetector(world_map, config.loop)
+    if not config.loop.vocabulary:
+        raise ConfigError(
+            "loop.detector: bow needs a vocabulary: build one with `pld-slam vocabulary build IMAGE_DIR... "
+            "--out vocab.npz`, then pass --set loop.vocabulary=vocab.npz"
+        )
+    return BowDetector(world_map, Vocabulary.load(config.loop.vocabulary), config.loop)
 
 
 def _reference_keyframe(kind: Landmarks, landmark: int, row: dict[int, int]) -> int:

@@ -1,17 +1,10 @@
-"""Verification of a loop candidate (paper, section "Loop detection"): two stages and a geometric check.
+"""Verification of a loop candidate (paper, section "Loop detection"): a geometric check, the drift gate and lc_rat.
 
-A wrong loop is far worse than a missed one: it bends the whole map. A candidate is
-accepted only when it passes every test, cheapest first:
+A wrong loop is far worse than a missed one: it bends the whole map. A candidate that
+passed its detector's consistency test (`pld_slam.loop.detection`; the paper's stage 2 for
+GGS) is accepted only when it passes every test here, cheapest first:
 
-1. Neighbourhood consistency (the paper's second stage): "the previous keyframe has
-   significant similarity with the looped keyframe, and there is a significant similarity
-   between the current keyframe and the adjacent frames of the looped keyframe". We read
-   "significant" as the bar the candidate itself passed (`pld_slam.loop.ggs_detector`: the
-   current keyframe's largest GGS distance to its covisible neighbours): the previous
-   keyframe's distance to the candidate, and the current keyframe's smallest distance to
-   the candidate's covisible neighbours, must both be within it. A candidate without
-   neighbours fails.
-2. Geometric check: the current keyframe's keypoints matched to the map points around
+1. Geometric check: the current keyframe's keypoints matched to the map points around
    the candidate (those of the candidate and its covisible neighbours, but for the
    landmarks the current keyframe and its own neighbours observe: the loop's other end
    must be matched to the old map only, or a candidate whose neighbourhood reaches back
@@ -21,7 +14,7 @@ accepted only when it passes every test, cheapest first:
    tracking). At least ``loop.min_inliers`` point and line inliers. Stereo has metric
    scale: the loop constraint is the SE(3) pose found, ``T_c_w`` of the current keyframe
    in the candidate's part of the map.
-3. Drift gate (not in the paper): the correction the loop makes to the current keyframe
+2. Drift gate (not in the paper): the correction the loop makes to the current keyframe
    (from its tracked pose to the pose found) must be one that drift could have caused
    since the candidate: at most ``loop.max_drift_ratio`` (10 %) of the keyframes' path
    between them plus 1 m, and ``loop.max_drift_deg`` (20 deg). Our tracking drifts by
@@ -29,7 +22,7 @@ accepted only when it passes every test, cheapest first:
    margin; an aliased match does not: on the synthetic block, whose facades repeat their
    textures, the geometric check once placed a keyframe on a facade seen 25 m earlier
    with 117 inliers of 119, a "correction" of 23 m and 61 deg.
-4. ``lc_rat`` (the paper's first stage), from that check's relative pose and inlier
+3. ``lc_rat`` (the paper's first stage), from that check's relative pose and inlier
    ratio. The paper writes ``lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl`` (alpha
    0.001, "initial inlier ratio" 50 %) and rejects a candidate whose ``lc_rat`` lies below
    20 %. Read literally, a larger motion between the two keyframes would make a candidate
@@ -54,7 +47,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.config import Config, LoopConfig
-from pld_slam.frontend.ggs import ggs_distance
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, rotation_angle, se3_log
 from pld_slam.mapping.keyframe import KeyFrame
@@ -68,18 +60,6 @@ from pld_slam.tracking.local_map import (
     track_local_map,
 )
 from pld_slam.tracking.relocalisation import pose_without_prior
-
-
-@dataclass(frozen=True)
-class Neighbourhood:
-    """Stage 2: the previous keyframe's GGS distance to the candidate, and the current keyframe's
-    smallest distance to the candidate's covisible neighbours (inf without any)."""
-
-    previous_distance: float
-    neighbour_distance: float
-
-    def passes(self, bar: float) -> bool:
-        return self.previous_distance <= bar and self.neighbour_distance <= bar
 
 
 @dataclass(frozen=True)
@@ -101,21 +81,6 @@ class GeometricCheck:
     @property
     def inlier_ratio(self) -> float:
         return self.inliers / self.matches if self.matches else 0.0
-
-
-def previous_keyframe(world_map: Map, keyframe: KeyFrame) -> KeyFrame | None:
-    """The live keyframe inserted last before ``keyframe`` (None for the first)."""
-    earlier = [k for k in world_map.keyframes if k < keyframe.id]
-    return world_map.keyframes[max(earlier)] if earlier else None
-
-
-def neighbourhood(world_map: Map, keyframe: KeyFrame, candidate: KeyFrame) -> Neighbourhood:
-    """Stage 2's two distances (module docstring)."""
-    previous = previous_keyframe(world_map, keyframe)
-    previous_distance = np.inf if previous is None else ggs_distance(previous.ggs, candidate.ggs)
-    around = [world_map.keyframes[k] for k in world_map.covisibility.neighbours(candidate.id) if k != keyframe.id]
-    neighbour_distance = min((ggs_distance(keyframe.ggs, k.ggs) for k in around), default=np.inf)
-    return Neighbourhood(float(previous_distance), float(neighbour_distance))
 
 
 def geometric_check(

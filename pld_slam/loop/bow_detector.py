@@ -1,0 +1,169 @@
+"""Bag-of-words place recognition, as ORB-SLAM2 does it: the rival of the paper's GGS.
+
+Each new keyframe's ORB descriptors (the static ones: features labelled dynamic are left
+out, as they are of the map) become a bag-of-words vector (`pld_slam.loop.vocabulary`),
+scored against the earlier keyframes through an inverse index (`BowDatabase`). Candidate
+selection follows ORB-SLAM2's ``KeyFrameDatabase::DetectLoopCandidates`` and
+``LoopClosing::DetectLoop``:
+
+1. The bar: the lowest score between the keyframe and its covisible neighbours.
+2. Keyframes sharing words with it, except its covisible keyframes and the
+   ``loop.exclude_recent_keyframes`` just before it (ORB-SLAM2 excludes only the
+   covisible ones; we exclude the recent ones too, as GGS does, so that both detectors
+   are asked the same question). Kept: those with at least 80 % of the largest number of
+   shared words, and a score at least the bar.
+3. Each kept keyframe's group (itself and its 10 strongest covisible neighbours among the
+   kept ones) accumulates their scores; the best-scored keyframe of every group whose
+   accumulated score exceeds 75 % of the best group's is a candidate.
+4. Group consistency: a candidate's group (itself and its covisible neighbours) is
+   consistent with a group of the previous keyframe's when they share a keyframe; a chain
+   of ``loop.bow_consistency`` (3) such consecutive keyframes makes the candidate
+   consistent. This is the detector's consistency test (`pld_slam.loop.detection`);
+   the geometric check and the rest are shared with GGS, which verifies the first
+   ``loop.candidates`` consistent candidates.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pld_slam.config import LoopConfig
+from pld_slam.loop.detection import Detection
+from pld_slam.loop.vocabulary import BowVector, Vocabulary, bow_score
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.map import Map
+
+COMMON_WORDS_RATIO = 0.8
+"""A candidate shares at least this share of the most words any keyframe shares (ORB-SLAM2)."""
+RETAIN_RATIO = 0.75
+"""A group is kept with an accumulated score above this share of the best (ORB-SLAM2)."""
+GROUP_NEIGHBOURS = 10
+"""Strongest covisible neighbours that join a keyframe's group for the accumulated score (ORB-SLAM2)."""
+
+
+class BowDatabase:
+    """An inverse index from words to the keyframes whose vectors hold them, with their weights."""
+
+    def __init__(self) -> None:
+        self._keyframes: dict[int, list[int]] = {}
+        self._weights: dict[int, list[float]] = {}
+
+    def add(self, keyframe_id: int, vector: BowVector) -> None:
+        """Index a keyframe's vector (ids in increasing order)."""
+        for word, weight in zip(vector.words.tolist(), vector.weights.tolist()):
+            self._keyframes.setdefault(word, []).append(keyframe_id)
+            self._weights.setdefault(word, []).append(weight)
+
+    def query(self, vector: BowVector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every indexed keyframe sharing a word with ``vector``: ids (N,) ascending, shared words (N,),
+        and L1 scores (N,) (`pld_slam.loop.vocabulary.bow_score`: the sum of the smaller weights)."""
+        keyframes: list[int] = []
+        weights: list[float] = []
+        query_weights: list[float] = []
+        for word, weight in zip(vector.words.tolist(), vector.weights.tolist()):
+            posted = self._keyframes.get(word)
+            if posted:
+                keyframes.extend(posted)
+                weights.extend(self._weights[word])
+                query_weights.extend([weight] * len(posted))
+        if not keyframes:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+        ids, row = np.unique(np.array(keyframes, dtype=np.int64), return_inverse=True)
+        shared = np.bincount(row, minlength=len(ids))
+        scores = np.bincount(row, weights=np.minimum(weights, query_weights), minlength=len(ids))
+        return ids, shared, scores
+
+
+@dataclass(frozen=True)
+class _Group:
+    """A candidate's group of keyframes and how many consecutive keyframes it has been consistent for."""
+
+    keyframes: frozenset[int]
+    consistency: int
+
+
+class BowDetector:
+    """ORB-SLAM2's loop detector (module docstring): keeps the inverse index and the consistent groups."""
+
+    def __init__(self, world_map: Map, vocabulary: Vocabulary, config: LoopConfig) -> None:
+        self._map = world_map
+        self._vocabulary = vocabulary
+        self._config = config
+        self.database = BowDatabase()
+        self.vectors: dict[int, BowVector] = {}
+        """Each keyframe's bag-of-words vector, by keyframe id."""
+        self._groups: list[_Group] = []
+
+    def vector_of(self, keyframe: KeyFrame) -> BowVector:
+        """The bag-of-words vector of the keyframe's static keypoints."""
+        descriptors = keyframe.features.keypoints.descriptors[~keyframe.point_dynamic]
+        return self._vocabulary.bow_vector(descriptors)
+
+    def detect(self, keyframe: KeyFrame) -> list[Detection]:
+        """The keyframe's candidates with their group consistency, the best scored first; then index it."""
+        vector = self.vector_of(keyframe)
+        self.vectors[keyframe.id] = vector
+        bar = self._bar(keyframe, vector)
+        candidates, scores = self._scored_candidates(keyframe, vector, bar)
+        consistency = self._update_groups(candidates)
+        self.database.add(keyframe.id, vector)
+        return [
+            Detection(candidate=c, score=s, bar=bar, previous_distance=np.nan, neighbour_distance=np.nan,
+                      consistency=float(n), consistent=n >= self._config.bow_consistency)
+            for c, s, n in zip(candidates, scores, consistency)
+        ]
+
+    def _bar(self, keyframe: KeyFrame, vector: BowVector) -> float:
+        """Step 1: the lowest score with a covisible neighbour (NaN without any)."""
+        scores = [bow_score(vector, self.vectors[k]) for k in self._map.covisibility.neighbours(keyframe.id)
+                  if k in self.vectors]
+        return min(scores) if scores else float("nan")
+
+    def _scored_candidates(self, keyframe: KeyFrame, vector: BowVector, bar: float) -> tuple[list[int], list[float]]:
+        """Steps 2 and 3: the best keyframe of each retained group and its score, the best first."""
+        if np.isnan(bar):
+            return [], []
+        ids, shared, scores = self.database.query(vector)
+        joined = [*self._map.covisibility.shared(keyframe.id), keyframe.id]
+        eligible = (np.isin(ids, list(self._map.keyframes)) & ~np.isin(ids, joined)
+                    & (ids < keyframe.id - self._config.exclude_recent_keyframes))
+        if not eligible.any():
+            return [], []
+        kept = eligible & (shared >= COMMON_WORDS_RATIO * shared[eligible].max()) & (scores >= bar)
+        score_of = dict(zip(ids[kept].tolist(), scores[kept].tolist()))
+        best: dict[int, float] = {}
+        accumulated: dict[int, float] = {}
+        for candidate, score in score_of.items():
+            group = [candidate, *(k for k in self._map.covisibility.neighbours(candidate, GROUP_NEIGHBOURS)
+                                  if k in score_of)]
+            leader = max(group, key=lambda k: (score_of[k], -k))
+            total = sum(score_of[k] for k in group)
+            if total > accumulated.get(leader, -1.0):
+                best[leader], accumulated[leader] = score_of[leader], total
+        if not accumulated:
+            return [], []
+        retain = RETAIN_RATIO * max(accumulated.values())
+        leaders = sorted((k for k in accumulated if accumulated[k] > retain), key=lambda k: (-best[k], k))
+        return leaders, [best[k] for k in leaders]
+
+    def _update_groups(self, candidates: list[int]) -> list[int]:
+        """Step 4: each candidate's consistency, and the groups carried to the next keyframe."""
+        previous, self._groups = self._groups, []
+        extended = [False] * len(previous)
+        consistency = []
+        for candidate in candidates:
+            group = frozenset([candidate, *self._map.covisibility.neighbours(candidate)])
+            best = 0
+            linked = False
+            for n, old in enumerate(previous):
+                if group.isdisjoint(old.keyframes):
+                    continue
+                linked = True
+                best = max(best, old.consistency + 1)
+                if not extended[n]:
+                    self._groups.append(_Group(group, old.consistency + 1))
+                    extended[n] = True
+            if not linked:
+                self._groups.append(_Group(group, 0))
+            consistency.append(best)
+        return consistency

@@ -1,0 +1,1 @@
+"""Local mapping: keyframes, landmarks, the covisibility graph, culling and bundle adjustment."""
