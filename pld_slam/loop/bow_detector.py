@@ -42,36 +42,42 @@ GROUP_NEIGHBOURS = 10
 
 
 class BowDatabase:
-    """An inverse index from words to the keyframes whose vectors hold them, with their weights."""
+    """An inverse index from words to the keyframes whose vectors hold them, with their weights.
+
+    Each word's postings are two small arrays (keyframe ids, weights), grown by one entry
+    per keyframe holding the word; a query gathers the postings of its words and sums per
+    keyframe with `np.bincount` (keyframe ids are small integers), with no Python loop over
+    postings.
+    """
 
     def __init__(self) -> None:
-        self._keyframes: dict[int, list[int]] = {}
-        self._weights: dict[int, list[float]] = {}
+        self._keyframes: dict[int, np.ndarray] = {}
+        self._weights: dict[int, np.ndarray] = {}
+        self._size = 0
 
     def add(self, keyframe_id: int, vector: BowVector) -> None:
-        """Index a keyframe's vector (ids in increasing order)."""
+        """Index a keyframe's vector."""
+        empty = np.zeros(0)
         for word, weight in zip(vector.words.tolist(), vector.weights.tolist()):
-            self._keyframes.setdefault(word, []).append(keyframe_id)
-            self._weights.setdefault(word, []).append(weight)
+            self._keyframes[word] = np.append(self._keyframes.get(word, empty.astype(np.int64)), keyframe_id)
+            self._weights[word] = np.append(self._weights.get(word, empty), weight)
+        self._size = max(self._size, keyframe_id + 1)
 
     def query(self, vector: BowVector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every indexed keyframe sharing a word with ``vector``: ids (N,) ascending, shared words (N,),
         and L1 scores (N,) (`pld_slam.loop.vocabulary.bow_score`: the sum of the smaller weights)."""
-        keyframes: list[int] = []
-        weights: list[float] = []
-        query_weights: list[float] = []
-        for word, weight in zip(vector.words.tolist(), vector.weights.tolist()):
-            posted = self._keyframes.get(word)
-            if posted:
-                keyframes.extend(posted)
-                weights.extend(self._weights[word])
-                query_weights.extend([weight] * len(posted))
-        if not keyframes:
+        present = [(word, weight) for word, weight in zip(vector.words.tolist(), vector.weights.tolist())
+                   if word in self._keyframes]
+        if not present:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
-        ids, row = np.unique(np.array(keyframes, dtype=np.int64), return_inverse=True)
-        shared = np.bincount(row, minlength=len(ids))
-        scores = np.bincount(row, weights=np.minimum(weights, query_weights), minlength=len(ids))
-        return ids, shared, scores
+        keyframes = np.concatenate([self._keyframes[word] for word, _ in present])
+        weights = np.concatenate([self._weights[word] for word, _ in present])
+        lengths = [len(self._keyframes[word]) for word, _ in present]
+        query_weights = np.repeat([weight for _, weight in present], lengths)
+        shared = np.bincount(keyframes, minlength=self._size)
+        scores = np.bincount(keyframes, weights=np.minimum(weights, query_weights), minlength=self._size)
+        ids = np.flatnonzero(shared)
+        return ids, shared[ids], scores[ids]
 
 
 @dataclass(frozen=True)

@@ -242,20 +242,11 @@ class LoopClosing:
 
     def _fuse(self, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck, group: list[int]) -> int:
         """Step 2: join the two ends of the loop; returns the observations added or fused."""
-        fused = 0
         found = check.tracking
+        fused = 0
         for kind, loop_ids in zip(self.map.kinds, (found.point_ids, found.line_ids)):
             features = np.flatnonzero(loop_ids >= 0)
-            own = getattr(keyframe, kind.IDS_FIELD)
-            for feature, landmark in zip(features.tolist(), loop_ids[features].tolist()):
-                if not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
-                    continue
-                existing = int(own[feature])
-                if existing >= 0 and kind.alive[existing]:
-                    self.map.replace_landmark(kind, existing, landmark)
-                else:
-                    self.map.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
-                fused += 1
+            fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
         loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
         loop_side = (loop_side.points.ids, loop_side.lines.ids)
         for keyframe_id in group:

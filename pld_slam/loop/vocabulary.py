@@ -29,10 +29,11 @@ every level the child whose centre is nearest in Hamming distance (the first on 
 an image's features by the node they pass through so that matching compares only
 features under the same node. The loop's geometric check does not use it: it matches the
 candidates of both detectors by descriptor alone (`pld_slam.loop.verify`), so that GGS
-and bag of words are compared on place recognition and nothing else. `Vocabulary.bow_vector` makes an image's TF-IDF vector
-(term frequency: a word's share of the image's descriptors, times its idf), normalised
-to L1 norm 1. Two vectors are scored by DBoW2's L1 score, ``1 - |a - b|_1 / 2``, in [0, 1]
-with 1 for the same words in the same proportions (`bow_score`).
+and bag of words are compared on place recognition and nothing else.
+`Vocabulary.bow_vector` makes an image's TF-IDF vector (term frequency: a word's share
+of the image's descriptors, times its idf), normalised to L1 norm 1. Two vectors are
+scored by DBoW2's L1 score, ``1 - |a - b|_1 / 2``, in [0, 1] with 1 for the same words in
+the same proportions (`bow_score`).
 """
 
 from collections.abc import Callable, Sequence

@@ -218,8 +218,9 @@ class LocalMapping:
         """Project ``landmark_ids`` into ``keyframe`` and add or fuse what matches; returns the changes made.
 
         A matched feature without a landmark observes the projected one; a feature with
-        another landmark fuses the two, the one with more observers kept. Loop closing
-        fuses the two ends of a loop the same way.
+        another landmark fuses the two, the one with more observers kept
+        (`pld_slam.mapping.map.Map.observe_or_fuse`). Loop closing fuses the two ends of a
+        loop the same way.
         """
         landmark_ids = landmark_ids[kind.alive[landmark_ids]]
         if len(landmark_ids) == 0:
@@ -229,20 +230,8 @@ class LocalMapping:
         features = getattr(keyframe.features, kind.FEATURES_FIELD)
         matches = match(self._camera, keyframe.T_c_w, snapshot, features, self._config).matches
         fits = self._reprojects(kind, keyframe, snapshot.geometry[matches.previous], matches.current)
-        dynamic = getattr(keyframe, kind.DYNAMIC_FIELD)
-        ids = getattr(keyframe, kind.IDS_FIELD)
-        changes = 0
-        for landmark, feature in zip(snapshot.ids[matches.previous[fits]].tolist(), matches.current[fits].tolist()):
-            if dynamic[feature] or not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
-                continue
-            existing = int(ids[feature])
-            if existing < 0 or not kind.alive[existing]:
-                self.map.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
-            else:
-                keep, drop = sorted((existing, landmark), key=lambda i: (-kind.n_observers[i], i))
-                self.map.replace_landmark(kind, drop, keep)
-            changes += 1
-        return changes
+        return self.map.observe_or_fuse(kind, keyframe, matches.current[fits], snapshot.ids[matches.previous[fits]],
+                                        keep_matched=False)
 
     def _reprojects(
         self, kind: Landmarks, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray

@@ -150,6 +150,34 @@ class Map:
         kind.n_observers[old] = 0
         kind.alive[old] = False
 
+    def observe_or_fuse(
+        self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, landmarks: np.ndarray, keep_matched: bool
+    ) -> int:
+        """Make each feature (K,) of ``keyframe`` observe its matched landmark (K,); returns the changes made.
+
+        A feature without a live landmark observes the matched one; a feature with another
+        landmark fuses the two: the matched one survives with ``keep_matched`` (loop
+        closing: the old map's landmark), else the one with more observers (local
+        mapping). Skipped: features labelled dynamic, dead landmarks, and landmarks the
+        keyframe already observes.
+        """
+        dynamic = getattr(keyframe, kind.DYNAMIC_FIELD)
+        ids = getattr(keyframe, kind.IDS_FIELD)
+        changes = 0
+        for feature, landmark in zip(features.tolist(), landmarks.tolist()):
+            if dynamic[feature] or not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
+                continue
+            existing = int(ids[feature])
+            if existing < 0 or not kind.alive[existing]:
+                self.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
+            elif keep_matched:
+                self.replace_landmark(kind, existing, landmark)
+            else:
+                keep, drop = sorted((existing, landmark), key=lambda i: (-kind.n_observers[i], i))
+                self.replace_landmark(kind, drop, keep)
+            changes += 1
+        return changes
+
     def update_links(self, keyframe: KeyFrame) -> None:
         """Recount the landmarks ``keyframe`` shares with every other keyframe (covisibility)."""
         shared: Counter[int] = Counter()
