@@ -19,7 +19,8 @@ def _parse_size(ctx: click.Context, param: click.Parameter, value: str) -> tuple
 @click.argument("out", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--scenario", type=click.Choice(SCENARIOS), default="static", show_default=True)
 @click.option("--frames", type=click.IntRange(min=2), default=None,
-              help="Number of stereo pairs [default: the scenario's own, 360 for loop].")
+              help="Number of stereo pairs [default: the scenario's own: 360 for loop, 720 for loop2, "
+                   "300 for nearmiss, 100 otherwise].")
 @click.option("--size", default="640x480", show_default=True, callback=_parse_size,
               help="Image size WIDTHxHEIGHT.")
 @click.option("--seed", type=int, default=0, show_default=True)

@@ -11,8 +11,8 @@ import pytest
 from pld_slam.errors import PldSlamError
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose, so3_exp
-from pld_slam.synth import SCENARIOS, build_scenario, write_sequence
-from pld_slam.synth.render import render_view
+from pld_slam.synth import MIN_FRAMES, SCENARIOS, build_scenario, write_sequence
+from pld_slam.synth.render import render_stereo_views, render_view
 from pld_slam.synth.scene import STATIC_OBJECT, Quads, Scene, floor, wall
 from pld_slam.synth.textures import TextureAtlas, flat
 
@@ -104,9 +104,18 @@ def test_same_seed_renders_identical_frames_and_another_seed_differs():
     assert np.abs(a.left.astype(int) - c.left).mean() > 5.0
 
 
+@pytest.mark.parametrize("name", ["loop2", "nearmiss"])
+def test_new_scenarios_render_the_same_frames_every_time(name):
+    index = {"loop2": 500, "nearmiss": 150}[name]
+    a = build_scenario(name, None, TINY, seed=2).render_frame(index)
+    b = build_scenario(name, None, TINY, seed=2).render_frame(index)
+    for field in ("left", "right", "dynamic_mask"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_images_are_structured_grey_stereo_pairs(name):
-    frame = scenario(name, n_frames=None if name == "loop" else 12).render_frame(0)
+    frame = scenario(name, n_frames=None if name in MIN_FRAMES else 12).render_frame(0)
     assert frame.left.dtype == np.uint8 and frame.left.shape == (SMALL[1], SMALL[0])
     assert frame.right.shape == frame.left.shape and frame.dynamic_mask.dtype == bool
     assert frame.left.std() > 20.0 and frame.right.std() > 20.0
@@ -164,6 +173,101 @@ def test_loop_returns_to_its_start_pose_exactly():
 def test_loop_needs_300_frames():
     with pytest.raises(PldSlamError, match="300"):
         build_scenario("loop", 299, TINY)
+
+
+def test_loop2_and_nearmiss_refuse_too_few_frames():
+    with pytest.raises(PldSlamError, match="600 frames to drive around the block twice"):
+        build_scenario("loop2", 599, TINY)
+    with pytest.raises(PldSlamError, match="150"):
+        build_scenario("nearmiss", 149, TINY)
+
+
+def rotation_angle_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    cos = (np.trace(T_a[:3, :3].T @ T_b[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def test_loop2_drives_the_block_twice_and_returns_to_its_start_pose_exactly():
+    world = scenario("loop2", size=TINY, n_frames=None)
+    assert world.n_frames == 720
+    half = world.n_frames // 2
+    np.testing.assert_array_equal(world.poses[0], np.eye(4))
+    np.testing.assert_array_equal(world.poses[-1], world.poses[0])
+    assert np.linalg.norm(world.poses[:, :3, 3], axis=1).max() > 50.0
+    assert np.linalg.norm(np.diff(world.poses[:, :3, 3], axis=0), axis=1).max() < 1.0
+    # frame i + N/2 is frame i half a frame (L / 719 = 0.42 m) further on
+    gaps = np.linalg.norm(world.poses[half:, :3, 3] - world.poses[:half, :3, 3], axis=1)
+    assert gaps.max() < 0.5
+    assert max(rotation_angle_deg(a, b) for a, b in zip(world.poses[:half], world.poses[half:])) < 2.0
+    # lap one is loop's world: the same quads, its parked cars only there for the first visit
+    loop = scenario("loop", size=TINY, n_frames=None).scene
+    first_visit = world.scene.transient.quads.select(world.scene.transient.first == 0)
+    mine = Quads.concat([world.scene.static, first_visit]).corners().reshape(-1, 12)
+    theirs = loop.static.corners().reshape(-1, 12)
+    np.testing.assert_allclose(mine[np.lexsort(mine.T)], theirs[np.lexsort(theirs.T)])
+
+
+def test_loop2_second_lap_looks_different_at_the_same_pose_and_loop_does_not():
+    world = scenario("loop2", size=TINY, n_frames=None)
+    loop = scenario("loop", size=TINY, n_frames=None)
+    half = world.n_frames // 2
+    for index in (0, 120, 240):
+        T_w_c = world.poses[index + half]
+        first, _ = render_stereo_views(world.scene, world.camera, T_w_c, index)
+        second, _ = render_stereo_views(world.scene, world.camera, T_w_c, index + half)
+        assert np.abs(first.radiance - second.radiance).mean() > 15.0
+        assert second.radiance.mean() < 0.85 * first.radiance.mean()  # darker
+        assert (np.abs(first.inv_depth - second.inv_depth) > 1e-4).mean() > 0.01  # other cars
+        same, _ = render_stereo_views(loop.scene, loop.camera, T_w_c, index)
+        again, _ = render_stereo_views(loop.scene, loop.camera, T_w_c, index + half)
+        np.testing.assert_array_equal(same.radiance, again.radiance)
+    start, end = world.render_frame(0), world.render_frame(world.n_frames - 1)
+    assert np.abs(start.left.astype(float) - end.left).mean() > 15.0
+    assert not end.dynamic_mask.any()  # parked cars never move: not in the dynamic masks
+
+
+def test_loop2_parked_cars_change_only_out_of_sight():
+    world = scenario("loop2", size=TINY, n_frames=None)
+    transient, n_static = world.scene.transient, len(world.scene.static)
+    swaps = np.unique(transient.first[transient.first > 0])
+    assert len(swaps) > 20
+    for swap in swaps:
+        changing = (transient.first == swap) | (transient.end == swap)
+        for index in (swap - 1, swap):
+            present = np.flatnonzero((transient.first <= index) & (index < transient.end))
+            for view in world.render_views(int(index)):
+                ids = view.quad_id[(view.quad_id >= n_static) & (view.quad_id < n_static + len(present))]
+                assert not changing[present[ids - n_static]].any(), (swap, index)
+
+
+def test_nearmiss_comes_back_beside_its_way_out_but_never_to_an_earlier_place():
+    world = scenario("nearmiss", size=TINY, n_frames=None)
+    assert world.n_frames == 300
+    position, forward = world.poses[:, :3, 3], world.poses[:, :3, 2]
+    i, j = np.triu_indices(world.n_frames, 1)
+    distance = np.linalg.norm(position[i] - position[j], axis=1)
+    assert distance[j - i > 100].min() > 15.0
+    alike = np.einsum("ij,ij->i", forward[i], forward[j]) > 0.0  # headings within 90 degrees
+    assert distance[(j - i > 30) & alike].min() > 15.0
+    assert 35.0 < np.linalg.norm(position[-1] - position[0]) < 45.0  # back level with the start
+    assert forward[-1] @ forward[0] < -0.99
+
+
+def test_nearmiss_sees_other_buildings_on_the_way_back():
+    world = scenario("nearmiss", size=TINY, n_frames=None)
+    x = world.poses[:, 0, 3]
+    out, back = np.flatnonzero(x < 1.0), np.flatnonzero(x > 39.0)
+    assert len(out) > 100 and len(back) > 100
+
+    def surfaces(frames) -> set[int]:
+        seen = set()
+        for index in frames[::10]:
+            left, _ = world.render_views(int(index))
+            ids, counts = np.unique(left.quad_id[left.quad_id >= 0], return_counts=True)
+            seen |= set(ids[counts > 0.002 * left.quad_id.size].tolist())
+        return seen
+
+    assert surfaces(out) & surfaces(back) <= {0}  # quad 0: the ground plane under everything
 
 
 @pytest.mark.parametrize("size", [(0, 240), (320, -1), (32.5, 24)])

@@ -10,11 +10,12 @@ exact ground-truth poses and per-frame masks of the pixels on moving objects.
 """
 
 from pld_slam.synth.render import SynthFrame, View, render_stereo_frame
-from pld_slam.synth.scenarios import DEFAULT_FRAMES, MIN_LOOP_FRAMES, SCENARIOS, Scenario, build_scenario
+from pld_slam.synth.scenarios import DEFAULT_FRAMES, MIN_FRAMES, MIN_LOOP_FRAMES, SCENARIOS, Scenario, build_scenario
 from pld_slam.synth.writer import SynthSummary, write_sequence
 
 __all__ = [
     "DEFAULT_FRAMES",
+    "MIN_FRAMES",
     "MIN_LOOP_FRAMES",
     "SCENARIOS",
     "Scenario",

@@ -11,9 +11,10 @@ and ``w <= 1 / NEAR``: five half-planes, which give each row's column span direc
 Pass 1 (per visible quad, on its screen box) keeps the largest ``w`` (the nearest surface)
 and the quad index per pixel. Pass 2 (per covered pixel, all at once) recovers the texture
 coordinates ``sigma / w`` and ``tau / w``, picks a mip level from the pixel's footprint on
-the surface, samples the atlas and applies flat lighting. Sky pixels get a smooth gradient
-by elevation. Finally the sensor: a Gaussian blur (sigma 0.7 px, hides aliasing) and
-Gaussian noise (sigma 1.5 grey levels, seeded per frame and eye).
+the surface, samples the atlas and applies flat lighting by the frame's sun direction
+(`Scene.light_at`). Sky pixels get a smooth gradient by elevation. The frame's exposure
+(`Scene.exposure_at`) then scales everything. Finally the sensor: a Gaussian blur (sigma
+0.7 px, hides aliasing) and Gaussian noise (sigma 1.5 grey levels, seeded per frame and eye).
 """
 
 from dataclasses import dataclass
@@ -286,9 +287,10 @@ def sky(camera: StereoCamera, R_w_c: np.ndarray) -> np.ndarray:
 
 
 def shading_table(projected: ProjectedQuads, quads: Quads, scene: Scene,
-                  camera: StereoCamera) -> np.ndarray:
+                  camera: StereoCamera, light: np.ndarray) -> np.ndarray:
     """Per-quad shading constants (Q, 9) float32: texture coordinate coefficients along
-    ``a`` (3) and ``b`` (3), mip level offset, ``material * n_levels`` and brightness.
+    ``a`` (3) and ``b`` (3), mip level offset, ``material * n_levels`` and brightness under
+    the sun direction ``light`` (3,).
 
     The mip level is log2 of the texels per pixel: a pixel's footprint on a plane at
     distance ``h`` has area ``z^2 / (fx^2 |d . n|) = 1 / (fx^2 w^3 h)``, so the level is
@@ -302,17 +304,18 @@ def shading_table(projected: ProjectedQuads, quads: Quads, scene: Scene,
         projected.tex_t,
         lod_offset,
         quads.material * atlas.n_levels,
-        quad_brightness(quads, scene.light),
+        quad_brightness(quads, light),
     ]).astype(np.float32)
 
 
 def shade_pixels(projected: ProjectedQuads, quads: Quads, scene: Scene, camera: StereoCamera,
-                 inv_depth: np.ndarray, quad_id: np.ndarray, radiance: np.ndarray) -> None:
-    """Deferred texturing: write the lit texture value of every covered pixel into
-    ``radiance`` (H, W) float32, in place."""
+                 inv_depth: np.ndarray, quad_id: np.ndarray, radiance: np.ndarray,
+                 light: np.ndarray) -> None:
+    """Deferred texturing: write the texture value lit by the sun direction ``light`` (3,)
+    of every covered pixel into ``radiance`` (H, W) float32, in place."""
     atlas = scene.atlas
     pixels = np.flatnonzero(quad_id.ravel() >= 0)
-    per_pixel = shading_table(projected, quads, scene, camera)[quad_id.ravel()[pixels]]
+    per_pixel = shading_table(projected, quads, scene, camera, light)[quad_id.ravel()[pixels]]
     v, u = np.divmod(pixels, camera.width)
     u = u.astype(np.float32)
     v = v.astype(np.float32)
@@ -326,13 +329,18 @@ def shade_pixels(projected: ProjectedQuads, quads: Quads, scene: Scene, camera: 
     radiance.ravel()[pixels] = atlas.sample(key, s, t) * per_pixel[:, 8]
 
 
-def render_view(scene: Scene, quads: Quads, camera: StereoCamera, T_w_c: np.ndarray) -> View:
-    """Render world-frame ``quads`` of ``scene`` seen from a camera at ``T_w_c`` (4, 4)."""
+def render_view(scene: Scene, quads: Quads, camera: StereoCamera, T_w_c: np.ndarray,
+                frame: int = 0) -> View:
+    """Render world-frame ``quads`` of ``scene`` seen from a camera at ``T_w_c`` (4, 4),
+    under the light and exposure of ``frame``."""
     quads_c = quads.transformed(inverse(T_w_c))
     projected = project_quads(quads_c, camera)
     inv_depth, quad_id = rasterise(projected, camera)
     radiance = sky(camera, T_w_c[:3, :3])
-    shade_pixels(projected, quads, scene, camera, inv_depth, quad_id, radiance)
+    shade_pixels(projected, quads, scene, camera, inv_depth, quad_id, radiance, scene.light_at(frame))
+    exposure = scene.exposure_at(frame)
+    if exposure != 1.0:
+        radiance *= np.float32(exposure)
     object_id = np.where(quad_id >= 0, quads.object_id[quad_id], STATIC_OBJECT).astype(np.int32)
     return View(radiance=radiance, inv_depth=inv_depth, quad_id=quad_id, object_id=object_id)
 
@@ -354,8 +362,8 @@ def render_stereo_views(scene: Scene, camera: StereoCamera, T_w_c: np.ndarray,
                         frame: int) -> tuple[View, View]:
     """Noise-free left and right views of ``frame`` for the left camera at ``T_w_c``."""
     quads = scene.quads_at(frame)
-    left = render_view(scene, quads, camera, T_w_c)
-    right = render_view(scene, quads, camera, right_camera_pose(T_w_c, camera))
+    left = render_view(scene, quads, camera, T_w_c, frame)
+    right = render_view(scene, quads, camera, right_camera_pose(T_w_c, camera), frame)
     return left, right
 
 

@@ -1,4 +1,4 @@
-"""The four synthetic scenarios: a camera path, the street built along it, and its movers.
+"""The six synthetic scenarios: a camera path, the street built along it, and its movers.
 
 - ``static``: a street with gentle curves: buildings on both sides, parked cars, poles,
   crates; the camera drives in the right lane at 8 m/s (0.8 m per frame at 10 Hz) with a
@@ -10,6 +10,36 @@
   ``L * (i / (N - 1) mod 1)`` so the last pose is the first one, bit for bit.
 - ``lowtexture``: the street's path with plain walls of uniform panels, pillars, door frames
   and a uniform road: edges are nearly the only structure.
+- ``loop2``: ``loop``'s block driven twice (default 720 frames, 0.85 m apart as in
+  ``loop``'s default; at least 600, 1 m apart); frame i sits at arc length
+  ``L * (2 i / (N - 1) mod 1)``, so the last pose is the first one and frame ``i + N/2``
+  is frame i half a frame (0.42 m at 720 frames) further on. The first lap is ``loop``'s
+  world; on the second a loop detector must see the same place through two changes:
+
+  * other parked cars: each slot's car is drawn again from another random stream (other
+    slots taken, paint, place in the slot, direction). The cars are `Transient` static
+    quads that exist for a span of frames, not movers, because they never move while
+    they exist and the dynamic masks mark moving objects only. A slot's cars swap when
+    the camera is 8 m past it on the first lap, behind it, so no car pops in or out in
+    view (the tracker sees an ordinary static world); ahead of it the first lap sees the
+    old cars, the second lap only new ones.
+  * another light: `SECOND_SUN` (lower, from the other side, so the walls lit on the
+    first lap are in the shade) and `SECOND_EXPOSURE` (0.7: all radiance, sky included,
+    30 % darker) instead of `SUN` and 1. They blend smoothly over the last 30 m of the
+    first lap, as light changes over time: an exposure jump between two frames would
+    test the tracker rather than the loop closing. The renderer takes the light and
+    exposure per frame (`Scene.light_at`, `Scene.exposure_at`).
+
+  The ground truth is exact as in ``loop``; only what the camera sees changes.
+- ``nearmiss``: a hard negative for loop detection: out along a straight street, round the
+  block (two right turns of 18 m joined by 4 m) halfway through the drive, and back along
+  the parallel street 40 m to the right until level with the start (default 300 frames at
+  0.8 m, at least 150). No two frames more than 30 apart with headings within 90 degrees
+  are within 22 m of each other, and the way back faces other facades (those of the
+  return street, drawn further along the same random streams: alike, never the same), so
+  a loop detector must accept nothing here. The 40 m between the lane centres leave
+  26 m between the facades of the two rows of buildings inside the block, for buildings
+  8-14 m deep.
 
 Conventions (see `pld_slam.synth.scene`): the world is the first left camera (x right,
 y down, z forward), the ground is the plane ``y = CAMERA_HEIGHT``. Positions along a path
@@ -39,6 +69,7 @@ from pld_slam.synth.scene import (
     MovingObject,
     Quads,
     Scene,
+    Transient,
     box,
     building,
     floor,
@@ -48,10 +79,16 @@ from pld_slam.synth.scene import (
     yaw_pose,
 )
 
-SCENARIOS = ("static", "dynamic", "loop", "lowtexture")
+SCENARIOS = ("static", "dynamic", "loop", "lowtexture", "loop2", "nearmiss")
 """Names accepted by `build_scenario`."""
-DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100}
+DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100, "loop2": 720, "nearmiss": 300}
 MIN_LOOP_FRAMES = 300
+MIN_FRAMES = {
+    # name: (fewest frames, what they are needed for): about 1 m per frame at most.
+    "loop": (MIN_LOOP_FRAMES, "to drive around the block"),
+    "loop2": (2 * MIN_LOOP_FRAMES, "to drive around the block twice"),
+    "nearmiss": (150, "to drive out, round the block and back"),
+}
 
 CAMERA_HEIGHT = 1.6
 """Height [m] of the cameras above the road; also the world y of the ground."""
@@ -63,6 +100,19 @@ STREET_STEP = 0.8
 VIEW_AHEAD = 130.0
 """Street [m] built beyond the last camera position (what it can still see)."""
 SUN = np.array([-0.45, -0.8, 0.4]) / np.linalg.norm([-0.45, -0.8, 0.4])
+"""Direction towards the sun (world frame): up, to the left of and ahead of the start."""
+SECOND_SUN = np.array([0.6, -0.5, -0.45]) / np.linalg.norm([0.6, -0.5, -0.45])
+"""The sun on ``loop2``'s second lap: lower (34 instead of 53 degrees up), from the right
+and behind: the walls lit on the first lap are in the shade."""
+SECOND_EXPOSURE = 0.7
+"""Exposure (factor on all radiance, sky included) on ``loop2``'s second lap."""
+LIGHT_RAMP = 30.0
+"""Distance [m] over which the light changes, at the end of ``loop2``'s first lap."""
+PARKING_SWAP_MARGIN = 8.0
+"""On ``loop2``, a parking slot's car changes once the camera is this far [m] past it on
+the first lap (out of sight behind it)."""
+SECOND_PARKING_TAG = 20
+"""Random stream tag of the parked cars of ``loop2``'s second lap."""
 
 # The street cross-section, as lateral offsets l [m].
 LANE = 3.5
@@ -78,6 +128,11 @@ STRIP_MAX = 6.0
 # Loop block: straights of LOOP_A and LOOP_B metres joined by quarter circles.
 LOOP_A, LOOP_B, LOOP_RADIUS = 60.0, 36.0, 18.0
 PATH_STEP = 0.25
+NEARMISS_LINK = 4.0
+"""Straight [m] between the two corners of ``nearmiss``'s turn: the way back runs
+``2 * LOOP_RADIUS + NEARMISS_LINK`` = 40 m beside the way out."""
+PATH_BEHIND = 30.0
+"""Path [m] before the first camera position on the open streets."""
 
 
 def rng_for(seed: int, *tags: int) -> np.random.Generator:
@@ -186,6 +241,19 @@ def street_path(seed: int, s_start: float, s_end: float) -> Path:
     return Path.integrate(np.full(len(middle), PATH_STEP), curvature, origin=-first)
 
 
+def piecewise_path(pieces: list[tuple[float, float]], start_piece: int = 0) -> Path:
+    """The path of ``pieces`` ``(length [m], curvature [1/m])``, straights and circular
+    arcs, each cut into equal steps of at most `PATH_STEP`; ``s = 0`` where piece
+    ``start_piece`` begins."""
+    steps, curvature = [], []
+    for length, kappa in pieces:
+        n = int(np.ceil(length / PATH_STEP))
+        steps.append(np.full(n, length / n))
+        curvature.append(np.full(n, kappa))
+    origin = sum(len(piece) for piece in steps[:start_piece])
+    return Path.integrate(np.concatenate(steps), np.concatenate(curvature), origin=origin)
+
+
 def loop_path() -> Path:
     """The closed block: start halfway along a long side, four right turns of
     `LOOP_RADIUS`, back to the start with the same heading."""
@@ -193,12 +261,22 @@ def loop_path() -> Path:
     pieces = [(0.5 * LOOP_A, 0.0), (quarter, 1.0 / LOOP_RADIUS), (LOOP_B, 0.0),
               (quarter, 1.0 / LOOP_RADIUS), (LOOP_A, 0.0), (quarter, 1.0 / LOOP_RADIUS),
               (LOOP_B, 0.0), (quarter, 1.0 / LOOP_RADIUS), (0.5 * LOOP_A, 0.0)]
-    steps, curvature = [], []
-    for length, kappa in pieces:
-        n = int(np.ceil(length / PATH_STEP))
-        steps.append(np.full(n, length / n))
-        curvature.append(np.full(n, kappa))
-    return Path.integrate(np.concatenate(steps), np.concatenate(curvature), origin=0)
+    return piecewise_path(pieces)
+
+
+def nearmiss_path(out_length: float, back_length: float) -> Path:
+    """Out along a straight street for ``out_length`` [m], round the block with two right
+    turns of `LOOP_RADIUS` joined by `NEARMISS_LINK` m, and back for ``back_length`` [m]
+    on the parallel street 40 m to the right; `PATH_BEHIND` m before the start."""
+    quarter = 0.5 * np.pi * LOOP_RADIUS
+    pieces = [(PATH_BEHIND, 0.0), (out_length, 0.0), (quarter, 1.0 / LOOP_RADIUS),
+              (NEARMISS_LINK, 0.0), (quarter, 1.0 / LOOP_RADIUS), (back_length, 0.0)]
+    return piecewise_path(pieces, start_piece=1)
+
+
+def nearmiss_turn_length() -> float:
+    """Arc length [m] of ``nearmiss``'s turn round the block (both corners and the link)."""
+    return np.pi * LOOP_RADIUS + NEARMISS_LINK
 
 
 # --- the camera -------------------------------------------------------------------------------
@@ -470,18 +548,26 @@ def pole_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random
     return parts
 
 
-def parked_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
-               palette: Palette) -> list[Quads]:
-    """Parked cars in the parking lane, one 6.5 m slot in two taken, random paint."""
+def parked_slots(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+                 palette: Palette) -> list[tuple[float, Quads]]:
+    """Parked cars in the parking lane, one 6.5 m slot in two taken, random paint, up to
+    0.8 m off the slot's middle, 30 % facing the other way: the arc length [m] of each
+    taken slot's middle and its car."""
     lateral = ROAD_RIGHT - 0.5 * PARKING if side > 0 else ROAD_LEFT + 0.5 * PARKING
-    parts = []
+    slots = []
     for s in np.arange(s_start + 3.0, s_end, 6.5):
         taken, turned, paint, shift = rng.random(), rng.random(), rng.uniform(0.3, 1.1), rng.uniform(-0.8, 0.8)
         if taken < 0.5:
             yaw = np.pi if (turned < 0.3) != (side < 0) else 0.0
             car = box(*CAR_SIZE, palette.car, float(paint))
-            parts.append(car.transformed(path.pose(s + shift, lateral, yaw)))
-    return parts
+            slots.append((float(s), car.transformed(path.pose(s + shift, lateral, yaw))))
+    return slots
+
+
+def parked_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
+               palette: Palette) -> list[Quads]:
+    """The parked cars of `parked_slots`."""
+    return [car for _, car in parked_slots(path, s_start, s_end, side, rng, palette)]
 
 
 def crate_row(path: Path, s_start: float, s_end: float, side: int, rng: np.random.Generator,
@@ -501,15 +587,66 @@ def crate_row(path: Path, s_start: float, s_end: float, side: int, rng: np.rando
     return parts
 
 
-def street(path: Path, s_start: float, s_end: float, seed: int, palette: Palette) -> Quads:
-    """All static quads of a street between two arc lengths, including the ground plane.
-    Each row of objects draws from its own random stream."""
+STREET_ROWS: tuple[Callable, ...] = (building_row, pole_row, parked_row, crate_row)
+"""The rows of objects along a street; row k on side ``side`` draws from the random stream
+``rng_for(seed, 10 + k, side + 1)``."""
+
+
+def row_rng(seed: int, make_row: Callable, side: int) -> np.random.Generator:
+    """The random stream of row ``make_row`` (one of `STREET_ROWS`) on side ``side``."""
+    return rng_for(seed, 10 + STREET_ROWS.index(make_row), side + 1)
+
+
+def street(path: Path, s_start: float, s_end: float, seed: int, palette: Palette,
+           parked: bool = True) -> Quads:
+    """All static quads of a street between two arc lengths, including the ground plane,
+    without the parked cars if not ``parked``. Each row of objects draws from its own
+    random stream."""
     parts = [ground_plane(path, palette), *street_ground(path, s_start, s_end, palette)]
-    rows: list[Callable] = [building_row, pole_row, parked_row, crate_row]
-    for tag, make_row in enumerate(rows):
+    for make_row in STREET_ROWS:
+        if make_row is parked_row and not parked:
+            continue
         for side in (1, -1):
-            parts += make_row(path, s_start, s_end, side, rng_for(seed, 10 + tag, side + 1), palette)
+            parts += make_row(path, s_start, s_end, side, row_rng(seed, make_row, side), palette)
     return Quads.concat(parts)
+
+
+# --- what changes between the laps of loop2 -----------------------------------------------------
+
+
+def parked_visits(path: Path, driven: np.ndarray, seed: int, palette: Palette) -> Transient:
+    """The parked cars of ``loop2`` around the closed ``path``, at frames that have driven
+    ``driven`` (N,) [m] in all (0 to two laps).
+
+    On the first visit of each slot they are those of ``loop``; then each slot's car is
+    drawn again from another random stream (`SECOND_PARKING_TAG`): other slots taken,
+    other paint, place in the slot and direction. A slot's cars swap at the first frame
+    `PARKING_SWAP_MARGIN` past it on the first lap, when it is behind the camera, so no
+    car appears or vanishes in view; the first lap sees the cars ahead of it as they were,
+    the second lap sees only the new ones.
+    """
+    quads, first, end = [], [], []
+    for visit, tag in enumerate((10 + STREET_ROWS.index(parked_row), SECOND_PARKING_TAG)):
+        for side in (1, -1):
+            for s, car in parked_slots(path, 0.0, path.length, side, rng_for(seed, tag, side + 1), palette):
+                swap = int(np.searchsorted(driven, s + PARKING_SWAP_MARGIN))
+                quads.append(car)
+                first.append(np.full(len(car), 0 if visit == 0 else swap))
+                end.append(np.full(len(car), swap if visit == 0 else len(driven)))
+    return Transient(Quads.concat(quads), np.concatenate(first), np.concatenate(end))
+
+
+def lap_light(driven: np.ndarray, lap_length: float) -> tuple[np.ndarray, np.ndarray]:
+    """The sun direction (N, 3) and exposure (N,) of ``loop2`` at frames that have driven
+    ``driven`` (N,) [m] around a lap of ``lap_length`` [m]: `SUN` and 1 on the first lap,
+    `SECOND_SUN` and `SECOND_EXPOSURE` on the second, blended smoothly over the last
+    `LIGHT_RAMP` m of the first lap (a change of light between two frames would test
+    the tracker, not the loop closing)."""
+    x = np.clip((driven - (lap_length - LIGHT_RAMP)) / LIGHT_RAMP, 0.0, 1.0)
+    blend = (x * x * (3.0 - 2.0 * x))[:, None]
+    light = (1.0 - blend) * SUN + blend * SECOND_SUN
+    exposure = 1.0 + (SECOND_EXPOSURE - 1.0) * blend[:, 0]
+    return light / np.linalg.norm(light, axis=1, keepdims=True), exposure
 
 
 # --- movers ------------------------------------------------------------------------------------
@@ -636,10 +773,71 @@ def check_request(name: str, n_frames: int | None, size: tuple[int, int]) -> int
     frames = DEFAULT_FRAMES[name] if n_frames is None else n_frames
     if frames < 1:
         raise PldSlamError(f"scenario {name!r} needs at least 1 frame, got {frames}")
-    if name == "loop" and frames < MIN_LOOP_FRAMES:
-        raise PldSlamError(
-            f"scenario 'loop' needs at least {MIN_LOOP_FRAMES} frames to drive around the block, got {frames}")
+    fewest, purpose = MIN_FRAMES.get(name, (1, ""))
+    if frames < fewest:
+        raise PldSlamError(f"scenario {name!r} needs at least {fewest} frames {purpose}, got {frames}")
     return int(frames)
+
+
+def lap_arc_lengths(path: Path, frames: int, laps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Arc lengths (N,) of ``frames`` camera positions spread evenly over ``laps`` laps of
+    the closed ``path``, and the distance driven (N,) [m] at each. Frame i sits at
+    ``L * (laps * i / (N - 1) mod 1)``: the last pose is the first one, bit for bit."""
+    fraction = laps * np.arange(frames) / (frames - 1)
+    return path.length * (fraction % 1.0), path.length * fraction
+
+
+def make_scene(static: Quads, palette: Palette, **changes) -> Scene:
+    """The scene of ``static`` quads with ``palette``'s textures; by default no movers and
+    the light `SUN`, or else as given in ``changes`` (`Scene` fields)."""
+    fields = {"moving": (), "light": SUN, **changes}
+    return Scene(static=static, atlas=tx.TextureAtlas.build(palette.textures), **fields)
+
+
+def loop_world(frames: int, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``loop``: once round the block."""
+    path = loop_path()
+    s, _ = lap_arc_lengths(path, frames, laps=1)
+    palette = textured_palette(seed)
+    static = street(path, 0.0, path.length, seed, palette)
+    return camera_poses(path, s, period=path.length), make_scene(static, palette)
+
+
+def two_lap_world(frames: int, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``loop2``: twice round ``loop``'s block, with other parked
+    cars (`parked_visits`) and another light (`lap_light`) on the second lap."""
+    path = loop_path()
+    s, driven = lap_arc_lengths(path, frames, laps=2)
+    palette = textured_palette(seed)
+    static = street(path, 0.0, path.length, seed, palette, parked=False)
+    light, exposure = lap_light(driven, path.length)
+    scene = make_scene(static, palette, light=light, exposure=exposure,
+                       transient=parked_visits(path, driven, seed, palette))
+    return camera_poses(path, s, period=path.length), scene
+
+
+def nearmiss_world(frames: int, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``nearmiss``: out along a street, round the block halfway
+    through the drive, and back along the parallel street."""
+    s = STREET_STEP * np.arange(frames)
+    s_end = s[-1] + VIEW_AHEAD
+    leg = 0.5 * (s[-1] - nearmiss_turn_length())
+    path = nearmiss_path(leg, s_end + 10.0 - leg - nearmiss_turn_length())
+    palette = textured_palette(seed)
+    static = street(path, -25.0, s_end, seed, palette)
+    return camera_poses(path, s, period=120.0), make_scene(static, palette)
+
+
+def street_world(name: str, times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``static``, ``dynamic`` or ``lowtexture`` at frame
+    ``times`` (N,) [s]: along a gently curved street."""
+    s = STREET_STEP * np.arange(len(times))
+    s_end = s[-1] + VIEW_AHEAD
+    path = street_path(seed, -PATH_BEHIND, s_end + 10.0)
+    palette = plain_palette() if name == "lowtexture" else textured_palette(seed)
+    static = street(path, -25.0, s_end, seed, palette)
+    movers = traffic(path, s, times, s_end, seed, palette) if name == "dynamic" else ()
+    return camera_poses(path, s, period=120.0), make_scene(static, palette, moving=movers)
 
 
 def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int] = (640, 480),
@@ -650,26 +848,18 @@ def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int]
     Raises
     ------
     PldSlamError
-        For an unknown name, a non-positive size, or fewer than `MIN_LOOP_FRAMES` frames
-        for ``loop``.
+        For an unknown name, a non-positive size, or fewer frames than `MIN_FRAMES` asks
+        (``loop``: `MIN_LOOP_FRAMES`).
     """
     frames = check_request(name, n_frames, size)
     camera = make_camera((int(size[0]), int(size[1])))
     times = np.arange(frames) / FRAME_RATE
     if name == "loop":
-        path = loop_path()
-        s = path.length * ((np.arange(frames) / (frames - 1)) % 1.0)
-        poses = camera_poses(path, s, period=path.length)
-        palette = textured_palette(seed)
-        static = street(path, 0.0, path.length, seed, palette)
-        movers: tuple[MovingObject, ...] = ()
+        poses, scene = loop_world(frames, seed)
+    elif name == "loop2":
+        poses, scene = two_lap_world(frames, seed)
+    elif name == "nearmiss":
+        poses, scene = nearmiss_world(frames, seed)
     else:
-        s = STREET_STEP * np.arange(frames)
-        s_end = s[-1] + VIEW_AHEAD
-        path = street_path(seed, -30.0, s_end + 10.0)
-        poses = camera_poses(path, s, period=120.0)
-        palette = plain_palette() if name == "lowtexture" else textured_palette(seed)
-        static = street(path, -25.0, s_end, seed, palette)
-        movers = traffic(path, s, times, s_end, seed, palette) if name == "dynamic" else ()
-    scene = Scene(static=static, moving=movers, atlas=tx.TextureAtlas.build(palette.textures), light=SUN)
+        poses, scene = street_world(name, times, seed)
     return Scenario(name=name, seed=seed, camera=camera, poses=poses, timestamps=times, scene=scene)

@@ -10,6 +10,10 @@ Frames follow the camera convention (y down): the world is the first left camera
 ground is the plane ``y = scenarios.CAMERA_HEIGHT``; an object frame has x right, y down, z forward
 and its origin on the ground at the middle of the object's footprint (for a building: of
 its facade's foot, with z pointing into the building). ``T_w_o`` places an object.
+
+What changes over a sequence: movers (`MovingObject`, a pose per frame), transient static
+quads (`Transient`, which exist for a span of frames: parked cars that differ between two
+visits of a place) and the light (`Scene.light` and `Scene.exposure`, optionally per frame).
 """
 
 from collections.abc import Sequence
@@ -68,6 +72,10 @@ class Quads:
             edge_a=self.edge_a @ R.T,
             edge_b=self.edge_b @ R.T,
         )
+
+    def select(self, keep: np.ndarray) -> "Quads":
+        """The quads where the mask or index array ``keep`` selects them, in order."""
+        return Quads(*(getattr(self, name)[keep] for name in Quads.__dataclass_fields__))
 
     def with_object_id(self, object_id: int) -> "Quads":
         """The same quads, all belonging to object ``object_id``."""
@@ -273,6 +281,31 @@ class MovingObject:
 
 
 @dataclass(frozen=True)
+class Transient:
+    """Static quads that exist for a span of frames only: a parked car that is gone when
+    the camera comes back, another one that was not there before.
+
+    They never move while they exist, so they keep `STATIC_OBJECT` (they are not in the
+    dynamic masks, which mark moving objects).
+
+    Attributes
+    ----------
+    quads : Quads
+        (Q) quads in the world frame, object id `STATIC_OBJECT`.
+    first, end : np.ndarray
+        (Q,) int64: each quad exists at frames ``first <= frame < end``.
+    """
+
+    quads: Quads
+    first: np.ndarray
+    end: np.ndarray
+
+    def at(self, frame: int) -> Quads:
+        """The quads that exist at ``frame``."""
+        return self.quads.select((self.first <= frame) & (frame < self.end))
+
+
+@dataclass(frozen=True)
 class Scene:
     """Everything the renderer needs: static quads, movers, textures, the light.
 
@@ -285,15 +318,33 @@ class Scene:
     atlas : TextureAtlas
         Textures indexed by ``Quads.material``.
     light : np.ndarray
-        (3,) unit vector in the world frame pointing towards the sun.
+        (3,) unit vector in the world frame pointing towards the sun, or (N, 3) one per
+        frame.
+    exposure : np.ndarray or None
+        (N,) factor on all radiance (surfaces and sky) at each frame: the daylight level;
+        None for 1 throughout.
+    transient : Transient or None
+        Static quads that exist for some frames only; None for none.
     """
 
     static: Quads
     moving: tuple[MovingObject, ...]
     atlas: TextureAtlas
     light: np.ndarray
+    exposure: np.ndarray | None = None
+    transient: Transient | None = None
 
     def quads_at(self, frame: int) -> Quads:
-        """All quads in the world frame at ``frame``: the static ones, then each mover's."""
+        """All quads in the world frame at ``frame``: the static ones, the transient ones
+        that exist then, then each mover's."""
+        present = [] if self.transient is None else [self.transient.at(frame)]
         movers = [obj.quads.transformed(obj.poses[frame]) for obj in self.moving]
-        return Quads.concat([self.static, *movers])
+        return Quads.concat([self.static, *present, *movers])
+
+    def light_at(self, frame: int) -> np.ndarray:
+        """(3,) unit vector towards the sun at ``frame``."""
+        return self.light if self.light.ndim == 1 else self.light[frame]
+
+    def exposure_at(self, frame: int) -> float:
+        """The factor on all radiance at ``frame``."""
+        return 1.0 if self.exposure is None else float(self.exposure[frame])
