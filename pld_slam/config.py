@@ -291,6 +291,12 @@ class LoopConfig:
         0.1, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
     )
     max_drift_deg: float = _param(20.0, "a loop may turn its keyframe by at most this [deg]", 0.0, 180.0)
+    max_distance_m: float = _param(
+        3.0, "a loop joins keyframes whose cameras, as the check places them, are at most this far apart [m]", 0.0
+    )
+    max_view_angle_deg: float = _param(
+        30.0, "... and whose optical axes are at most this far apart [deg]", 0.0, 180.0
+    )
     lc_rat_alpha: float = _param(0.001, "alpha of lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl (paper: 0.001)", 0.0)
     initial_inlier_ratio: float = _param(0.5, "initial inlier ratio of a loop candidate (paper: 0.5)", 0.0, 1.0)
     lc_rat_threshold: float = _param(0.2, "a candidate whose lc_rat lies below this is rejected (paper: 0.2)", 0.0)

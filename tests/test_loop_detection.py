@@ -10,7 +10,7 @@ from pld_slam.frontend.ggs import ggs_descriptor
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
 from pld_slam.loop.bow_detector import BowDatabase, BowDetector
 from pld_slam.loop.ggs_detector import GgsDetector, ggs_loop_candidates
-from pld_slam.loop.verify import lc_rat, plausible_drift
+from pld_slam.loop.verify import lc_rat, plausible_drift, same_place
 from pld_slam.loop.vocabulary import bow_score, build_vocabulary
 from pld_slam.mapping.map import Map
 
@@ -150,3 +150,13 @@ def test_drift_gate_accepts_drift_sized_corrections_only():
     assert plausible_drift(correction(2.0, 3.0), path=50.0, config=CONFIG)  # 4 % of the path
     assert not plausible_drift(correction(23.0, 3.0), path=25.0, config=CONFIG)  # an aliased facade
     assert not plausible_drift(correction(1.0, 61.0), path=500.0, config=CONFIG)
+
+
+def test_a_loop_joins_keyframes_at_the_same_place_only():
+    def camera(z: float, yaw_deg: float, x: float = 0.0) -> np.ndarray:  # T_c_w
+        return inverse(make_pose(so3_exp([0.0, np.radians(yaw_deg), 0.0]), [x, 0.0, z]))
+
+    assert same_place(camera(0.0, 0.0), camera(2.5, 20.0), CONFIG)
+    assert not same_place(camera(0.0, 0.0), camera(8.5, 0.0), CONFIG)  # recognised from 8.5 m back
+    assert not same_place(camera(0.0, 0.0), camera(0.0, 0.0, x=3.5), CONFIG)  # the next lane
+    assert not same_place(camera(0.0, 0.0), camera(0.0, 40.0), CONFIG)

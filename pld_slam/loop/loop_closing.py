@@ -58,6 +58,7 @@ from pld_slam.loop.verify import (
     plausible_drift,
     present_landmarks,
     relative_motion,
+    same_place,
 )
 from pld_slam.loop.vocabulary import Vocabulary
 from pld_slam.mapping.keyframe import KeyFrame
@@ -83,7 +84,7 @@ class LoopCandidate:
     correction_m, correction_deg : the correction the loop would make to the keyframe.
     accepted : whether the loop was closed with it.
     reason : ``"accepted"``, the test it failed (``"consistency"``, the detector's; ``"pnp"``,
-        ``"inliers"``, ``"drift"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but
+        ``"inliers"``, ``"drift"``, ``"distance"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but
         ``loop.candidates`` others were verified first).
     """
 
@@ -195,6 +196,8 @@ class LoopClosing:
                 reason = "inliers"
             elif not drift:
                 reason = "drift"
+            elif not same_place(check.T_c_w, candidate.T_c_w, config):
+                reason = "distance"
             elif score < config.lc_rat_threshold:
                 reason = "lc_rat"
             else:

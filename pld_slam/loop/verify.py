@@ -22,7 +22,17 @@ GGS) is accepted only when it passes every test here, cheapest first:
    margin; an aliased match does not: on the synthetic block, whose facades repeat their
    textures, the geometric check once placed a keyframe on a facade seen 25 m earlier
    with 117 inliers of 119, a "correction" of 23 m and 61 deg.
-3. ``lc_rat`` (the paper's first stage), from that check's relative pose and inlier
+3. Same place (not in the paper): the current keyframe, where the check places it, and
+   the candidate must see the scene from the same place: camera centres at most
+   ``loop.max_distance_m`` (3 m) apart and optical axes within ``loop.max_view_angle_deg``
+   (30 deg), the definition of a true loop the benchmarks score against. A forward
+   camera recognises a place from well before it gets there: on the synthetic block the
+   loop closed 8.5 m before the start (frame 351 to frame 2), a detection that place
+   recognition benchmarks count as false, and a pose-graph edge measured across 8.5 m
+   of PnP. Closing it a few keyframes later, at the place itself, costs nothing: until
+   the loop is closed the current side shares no landmark with the old one, so the old
+   keyframes stay candidates.
+4. ``lc_rat`` (the paper's first stage), from that check's relative pose and inlier
    ratio. The paper writes ``lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl`` (alpha
    0.001, "initial inlier ratio" 50 %) and rejects a candidate whose ``lc_rat`` lies below
    20 %. Read literally, a larger motion between the two keyframes would make a candidate
@@ -131,6 +141,13 @@ def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> 
     """Whether a keyframe's correction ``T_c_new_c_old`` (4, 4) could be drift over ``path`` [m] (module docstring)."""
     translation, angle = correction_size(correction)
     return translation <= config.max_drift_ratio * path + 1.0 and angle <= config.max_drift_deg
+
+
+def same_place(T_i_w: np.ndarray, T_j_w: np.ndarray, config: LoopConfig) -> bool:
+    """Whether two ``T_c_w`` poses (4, 4) see from the same place (module docstring, test 3)."""
+    distance = np.linalg.norm(inverse(T_i_w)[:3, 3] - inverse(T_j_w)[:3, 3])
+    axes_cos = float(np.clip(T_i_w[2, :3] @ T_j_w[2, :3], -1.0, 1.0))
+    return bool(distance <= config.max_distance_m and np.degrees(np.arccos(axes_cos)) <= config.max_view_angle_deg)
 
 
 def relative_motion(T_i_w: np.ndarray, T_j_w: np.ndarray) -> float:
