@@ -288,7 +288,7 @@ class LoopConfig:
         60, "point and line inliers the geometric check needs between a keyframe and its loop candidate's map", 1
     )
     max_drift_ratio: float = _param(
-        0.1, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
+        0.03, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
     )
     max_drift_deg: float = _param(20.0, "a loop may turn its keyframe by at most this [deg]", 0.0, 180.0)
     max_distance_m: float = _param(
