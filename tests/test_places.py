@@ -26,7 +26,6 @@ from pld_slam.loop.places import (
     natural_sorted_images,
     place_similarity,
     read_images,
-    similarity_matrix,
 )
 from pld_slam.loop.vocabulary import build_vocabulary
 from pld_slam_cli.main import EXIT_USER_ERROR, cli
@@ -135,14 +134,6 @@ def test_eligible_pairs_are_the_earlier_images_outside_the_recent_window():
     assert eligible_pairs(4).tolist() == np.tril(np.ones((4, 4), bool), -1).tolist()
     eligible = eligible_pairs(5, exclude_recent=2)
     assert np.argwhere(eligible).tolist() == [[3, 0], [4, 0], [4, 1]]
-
-
-def test_similarity_matrix_keeps_only_the_eligible_pairs():
-    scores = np.arange(16.0).reshape(4, 4)
-    similarity = similarity_matrix(scores, exclude_recent=1)
-    assert similarity[2, 0] == 8.0 and similarity[3, 1] == 13.0
-    assert np.isnan(similarity[2, 1]) and np.isnan(similarity[0, 0]) and np.isnan(similarity[0, 3])
-    assert np.count_nonzero(~np.isnan(similarity)) == 3
 
 
 def test_ggs_similarity_is_the_negated_ggs_distance_of_the_earlier_images():

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pld_slam.geometry.se3 import viewpoint_change
 from pld_slam.trajectory import Trajectory
 
 SAME_PLACE_M = 3.0
@@ -74,9 +75,7 @@ def true_poses_at(groundtruth: Trajectory, timestamps: np.ndarray) -> np.ndarray
 
 def same_place(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
     """Whether ``T_w_c`` poses (..., 4, 4) show the same place (module docstring); False where either is NaN."""
-    distance = np.linalg.norm(T_a[..., :3, 3] - T_b[..., :3, 3], axis=-1)
-    axes_cos = np.einsum("...i,...i->...", T_a[..., :3, 2], T_b[..., :3, 2])
-    angle = np.degrees(np.arccos(np.clip(axes_cos, -1.0, 1.0)))
+    distance, angle = viewpoint_change(T_a, T_b)
     with np.errstate(invalid="ignore"):
         return (distance <= SAME_PLACE_M) & (angle <= SAME_PLACE_DEG)
 

@@ -6,22 +6,15 @@ every ``k``-th image (the axes still count images), since a figure cannot show m
 pixels than it has and the full matrix is in ``similarity.npy``.
 """
 
-from pathlib import Path
-
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-from pld_slam.eval.plots import DPI, FIGURE_SIZE_IN
+from pld_slam.eval.plots import FIGURE_SIZE_IN, save_figure
 from pld_slam.loop.places import PlaceScores
 
 HEATMAP_MAX_PIXELS = 1000
 """Largest number of rows (and columns) of the similarity heat map before it is subsampled."""
-
-
-def _save(figure: Figure, path_png) -> None:
-    figure.tight_layout()
-    figure.savefig(Path(path_png), format="png", dpi=DPI)
 
 
 def plot_similarity_matrix(path_png, similarity: np.ndarray, title: str = "Place similarity") -> None:
@@ -42,7 +35,7 @@ def plot_similarity_matrix(path_png, similarity: np.ndarray, title: str = "Place
     axes.set_xlabel("database image")
     axes.set_ylabel("query image")
     axes.set_title(title if step == 1 else f"{title} (one image in {step} shown)")
-    _save(figure, path_png)
+    save_figure(figure, path_png)
 
 
 def plot_precision_recall(path_png, scores: PlaceScores, title: str = "Place recognition") -> None:
@@ -62,4 +55,4 @@ def plot_precision_recall(path_png, scores: PlaceScores, title: str = "Place rec
     axes.set_title(f"{title}: {scores.n_with_true_match} of {scores.n_queries} queries with a true match")
     axes.grid(True, alpha=0.3)
     axes.legend(loc="lower left")
-    _save(figure, path_png)
+    save_figure(figure, path_png)

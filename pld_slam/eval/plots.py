@@ -16,7 +16,8 @@ FIGURE_SIZE_IN = (6.4, 4.8)
 DPI = 100
 
 
-def _save(figure: Figure, path_png) -> None:
+def save_figure(figure: Figure, path_png) -> None:
+    """Lay out ``figure`` and write it as a PNG at `DPI`."""
     figure.tight_layout()
     figure.savefig(Path(path_png), format="png", dpi=DPI)
 
@@ -60,7 +61,7 @@ def plot_trajectory_top_view(
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
     axes.legend()
-    _save(figure, path_png)
+    save_figure(figure, path_png)
 
 
 def plot_error_over_time(
@@ -86,4 +87,4 @@ def plot_error_over_time(
     axes.set_ylim(bottom=0.0)
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
-    _save(figure, path_png)
+    save_figure(figure, path_png)

@@ -193,6 +193,14 @@ def nearest_pose(T: np.ndarray) -> np.ndarray:
     return make_pose(R, T[:3, 3])
 
 
+def viewpoint_change(T_w_a: np.ndarray, T_w_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far apart [m] two cameras ``T_w_c`` (..., 4, 4) stand, and the angle [deg] between
+    their optical axes (their z axes); NaN where either pose is NaN."""
+    distance = np.linalg.norm(T_w_a[..., :3, 3] - T_w_b[..., :3, 3], axis=-1)
+    axes_cos = np.einsum("...i,...i->...", T_w_a[..., :3, 2], T_w_b[..., :3, 2])
+    return distance, np.degrees(np.arccos(np.clip(axes_cos, -1.0, 1.0)))
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Rotation angle [rad] of a rotation (3, 3) or a stack (N, 3, 3), in [0, pi]."""
     trace = np.trace(R, axis1=-2, axis2=-1)

@@ -16,9 +16,9 @@ image ``j`` are, **higher = more similar**, whatever the detector. Only the pair
 the ``exclude_recent`` just before it); every other entry is NaN (`eligible_pairs`). For
 GGS the similarity is the negated GGS distance ``-sim_v`` (`pld_slam.frontend.ggs`:
 ``sim_v`` is 0 for identical images and grows as they differ), so it lies in about
-[-2, 0] with 0 for identical images. A detector is a function from the images to this
-matrix; `place_similarity` dispatches on the detector's name (GGS now; bag of words is
-to be wired in the same place).
+[-2, 0] with 0 for identical images; for bag of words it is DBoW2's L1 score of the
+images' ORB words, in [0, 1]. A detector is a function from the images to this matrix;
+`place_similarity` dispatches on the detector's name.
 
 What the issue leaves open, and what we decide:
 
@@ -128,18 +128,6 @@ def eligible_pairs(n_images: int, exclude_recent: int = 0) -> np.ndarray:
         raise ValueError(f"exclude_recent must be >= 0, got {exclude_recent}")
     index = np.arange(n_images)
     return index[None, :] < index[:, None] - exclude_recent
-
-
-def similarity_matrix(scores: np.ndarray, exclude_recent: int = 0) -> np.ndarray:
-    """The similarity matrix (N, N) float64 of full pairwise ``scores`` (N, N), higher = more similar.
-
-    A copy of ``scores`` with NaN outside the eligible pairs (`eligible_pairs`): the form
-    every detector returns, whatever it computed.
-    """
-    scores = np.asarray(scores, dtype=np.float64)
-    if scores.ndim != 2 or scores.shape[0] != scores.shape[1]:
-        raise ValueError(f"scores must be square (N, N), got shape {scores.shape}")
-    return np.where(eligible_pairs(len(scores), exclude_recent), scores, np.nan)
 
 
 def lower_rows_matrix(rows: list[np.ndarray]) -> np.ndarray:

@@ -61,7 +61,7 @@ import numpy as np
 
 from pld_slam.config import Config, LoopConfig
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, rotation_angle, se3_log
+from pld_slam.geometry.se3 import inverse, rotation_angle, se3_log, viewpoint_change
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
@@ -148,9 +148,8 @@ def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> 
 
 def same_place(T_i_w: np.ndarray, T_j_w: np.ndarray, config: LoopConfig) -> bool:
     """Whether two ``T_c_w`` poses (4, 4) see from the same place (module docstring, test 3)."""
-    distance = np.linalg.norm(inverse(T_i_w)[:3, 3] - inverse(T_j_w)[:3, 3])
-    axes_cos = float(np.clip(T_i_w[2, :3] @ T_j_w[2, :3], -1.0, 1.0))
-    return bool(distance <= config.max_distance_m and np.degrees(np.arccos(axes_cos)) <= config.max_view_angle_deg)
+    distance, angle = viewpoint_change(inverse(T_i_w), inverse(T_j_w))
+    return bool(distance <= config.max_distance_m and angle <= config.max_view_angle_deg)
 
 
 def relative_motion(T_i_w: np.ndarray, T_j_w: np.ndarray) -> float:

@@ -220,7 +220,7 @@ def build_vocabulary(
     for level in range(depth):
         splitting = _nodes_to_split(tree, node, level, branching)
         if len(splitting):
-            node = _split_level(tree, descriptors, node, splitting, rng, iterations)
+            node = _split_level(tree, descriptors, node, splitting, level + 1, rng, iterations)
         if progress is not None:
             progress(1)
     return tree.finish(node, image, len(descriptor_sets))
@@ -268,10 +268,11 @@ def _nodes_to_split(tree: _Tree, node: np.ndarray, level: int, branching: int) -
 
 
 def _split_level(
-    tree: _Tree, descriptors: np.ndarray, node: np.ndarray, splitting: np.ndarray, rng: np.random.Generator,
-    iterations: int,
+    tree: _Tree, descriptors: np.ndarray, node: np.ndarray, splitting: np.ndarray, child_level: int,
+    rng: np.random.Generator, iterations: int,
 ) -> np.ndarray:
-    """Split every node in ``splitting`` by k-majority; the new node (N,) of each descriptor."""
+    """Split every node in ``splitting`` into children at ``child_level`` by k-majority; the new
+    node (N,) of each descriptor."""
     k = tree.branching
     active = np.flatnonzero(np.isin(node, splitting))
     active = active[np.argsort(node[active], kind="stable")]
@@ -289,7 +290,7 @@ def _split_level(
         centres = _majority_centres(members, segment * k + cluster, centres)
     used = np.unique(segment * k + cluster)
     ids = tree.add_children(splitting[used // k], centres.reshape(-1, DESCRIPTOR_BYTES)[used], used % k,
-                            int(np.concatenate(tree.level)[splitting[0]]) + 1)
+                            child_level)
     new_node = node.copy()
     new_node[active] = ids[np.searchsorted(used, segment * k + cluster)]
     return new_node
