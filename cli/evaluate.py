@@ -13,6 +13,7 @@ from pld_slam.trajectory import Trajectory
 
 _ROWS = (
     ("ATE RMSE", "ate_rmse_m", "m", "{:.4f}"),
+    ("ATE rotation RMSE", "ate_rot_rmse_deg", "deg", "{:.4f}"),
     ("RPE trans RMSE (1 frame)", "rpe_trans_rmse_m", "m", "{:.4f}"),
     ("RPE rot RMSE (1 frame)", "rpe_rot_rmse_deg", "deg", "{:.4f}"),
     ("KITTI t_rel", "t_rel_pct", "%", "{:.2f}"),

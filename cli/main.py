@@ -11,10 +11,12 @@ import click
 
 from pld_slam import __version__
 from pld_slam.errors import PldSlamError
+from pld_slam_cli.ablate import ablate_command
 from pld_slam_cli.config import config_command
 from pld_slam_cli.demo import demo_command
 from pld_slam_cli.evaluate import eval_command
 from pld_slam_cli.places import places_command
+from pld_slam_cli.regress import regress_command
 from pld_slam_cli.run import run_command
 from pld_slam_cli.synth import synth_command
 from pld_slam_cli.vocabulary import vocabulary_command
@@ -66,6 +68,8 @@ cli.add_command(eval_command)
 cli.add_command(config_command)
 cli.add_command(places_command)
 cli.add_command(vocabulary_command)
+cli.add_command(ablate_command)
+cli.add_command(regress_command)
 
 
 def main() -> None:

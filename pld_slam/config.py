@@ -415,12 +415,17 @@ def read_yaml(path: Path) -> Any:
         text = Path(path).read_text()
     except OSError as error:
         raise ConfigError(f"{path}: cannot read config ({error.strerror})") from error
+    return parse_yaml(text, str(path))
+
+
+def parse_yaml(text: str, where: str) -> Any:
+    """Parsed YAML ``text``, or `ConfigError` naming ``where`` (a file) and the line."""
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{path}{line}: not valid YAML") from error
+        raise ConfigError(f"{where}{line}: not valid YAML") from error
 
 
 def parse_override(text: str) -> dict[str, dict[str, Any]]:

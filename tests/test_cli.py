@@ -16,7 +16,10 @@ from pld_slam.io.trajectory import read_kitti, write_kitti, write_tum
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
-JSON_KEYS = {"ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched"}
+JSON_KEYS = {
+    "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
+    "r_rel_deg_per_100m", "n_matched",
+}
 
 
 def run(*args: str):

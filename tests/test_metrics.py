@@ -27,6 +27,7 @@ def test_estimate_in_another_world_frame_has_zero_error_after_se3_alignment():
     groundtruth = drive()
     result = evaluate(groundtruth, with_poses(groundtruth, WORLD_CHANGE @ groundtruth.poses))
     assert result.ate_rmse_m == pytest.approx(0.0, abs=1e-9)
+    assert result.ate_rot_rmse_deg == pytest.approx(0.0, abs=1e-5)
     assert result.rpe_trans_rmse_m == pytest.approx(0.0, abs=1e-9)
     assert result.rpe_rot_rmse_deg == pytest.approx(0.0, abs=1e-5)
     assert result.t_rel_pct == pytest.approx(0.0, abs=1e-9)
@@ -40,6 +41,27 @@ def test_without_alignment_a_constant_offset_is_the_ate():
     estimate = with_poses(groundtruth, shifted)
     assert evaluate(groundtruth, estimate, align="none").ate_rmse_m == pytest.approx(5.0)
     assert evaluate(groundtruth, estimate, align="se3").ate_rmse_m == pytest.approx(0.0, abs=1e-9)
+
+
+def test_without_alignment_a_constant_camera_rotation_is_the_rotation_ate():
+    groundtruth = drive()
+    tilt = make_pose(Rotation.from_euler("x", 2.0, degrees=True).as_matrix(), np.zeros(3))
+    estimate = with_poses(groundtruth, groundtruth.poses @ tilt)
+    result = evaluate(groundtruth, estimate, align="none")
+    assert result.ate_rot_rmse_deg == pytest.approx(2.0)
+    assert result.ate_rmse_m == pytest.approx(0.0, abs=1e-9)
+
+
+def test_rotation_ate_is_free_of_the_roll_a_straight_drive_leaves_to_the_position_alignment():
+    sway = [[0.1 * np.sin(0.5 * n), 0.02 * np.cos(0.7 * n), 1.2 * n] for n in range(12)]
+    straight = np.array([make_pose(np.eye(3), position) for position in sway])
+    groundtruth = Trajectory(np.arange(12) / 10.0, straight)
+    noisy = straight.copy()
+    noisy[:, :3, 3] += np.random.default_rng(0).normal(0.0, 0.01, (12, 3))
+    estimate = with_poses(groundtruth, WORLD_CHANGE @ noisy)
+    rolled = fit_alignment(groundtruth, estimate).apply(estimate).poses[:, :3, :3]
+    assert np.degrees(Rotation.from_matrix(rolled[0]).magnitude()) > 0.5  # the positions' fit misses the roll
+    assert evaluate(groundtruth, estimate).ate_rot_rmse_deg == pytest.approx(0.0, abs=1e-6)
 
 
 def test_sim3_alignment_removes_a_scale_error_that_se3_cannot():
@@ -140,6 +162,7 @@ def test_short_path_has_no_kitti_drift_and_json_keys_are_fixed():
     assert result.t_rel_pct is None and result.r_rel_deg_per_100m is None
     assert list(result.as_dict()) == [
         "ate_rmse_m",
+        "ate_rot_rmse_deg",
         "rpe_trans_rmse_m",
         "rpe_rot_rmse_deg",
         "t_rel_pct",

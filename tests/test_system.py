@@ -37,7 +37,10 @@ from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 12
-ACCURACY_KEYS = ("ate_rmse_m", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched")
+ACCURACY_KEYS = (
+    "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
+    "r_rel_deg_per_100m", "n_matched",
+)
 TRACKING_STAGES = {"matching", "filters", "pose", "dynamic", "local_map"}
 
 

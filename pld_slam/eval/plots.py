@@ -45,8 +45,7 @@ def plot_trajectory_top_view(
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
     if groundtruth is not None:
-        gt_matched, est_matched = associate(groundtruth, estimate, by_index, max_diff)
-        estimate = fit_alignment(gt_matched, est_matched, align).apply(estimate)
+        estimate = aligned_onto(groundtruth, estimate, align, by_index, max_diff)
         gt_xz = groundtruth.positions[:, [0, 2]]
         axes.plot(gt_xz[:, 0], gt_xz[:, 1], "k--", label="ground truth")
     est_xz = estimate.positions[:, [0, 2]]
@@ -55,13 +54,26 @@ def plot_trajectory_top_view(
     for n, ends in enumerate(np.zeros((0, 2)) if loop_edges is None else loop_edges):
         rows = np.abs(estimate.timestamps[None, :] - np.asarray(ends)[:, None]).argmin(axis=1)
         axes.plot(est_xz[rows, 0], est_xz[rows, 1], "r-o", markersize=3, label="loop" if n == 0 else None)
+    finish_top_view(axes, title)
+    save_figure(figure, path_png)
+
+
+def aligned_onto(
+    groundtruth: Trajectory, estimate: Trajectory, align: str = "se3", by_index: bool = False, max_diff: float = 0.01
+) -> Trajectory:
+    """The whole ``estimate`` moved by the alignment of its matched poses onto ``groundtruth`` (as the ATE)."""
+    gt_matched, est_matched = associate(groundtruth, estimate, by_index, max_diff)
+    return fit_alignment(gt_matched, est_matched, align).apply(estimate)
+
+
+def finish_top_view(axes, title: str) -> None:
+    """Equal axes, x-z labels, title, grid and legend of a top-view plot."""
     axes.set_aspect("equal", adjustable="datalim")
     axes.set_xlabel("x [m] (right)")
     axes.set_ylabel("z [m] (forward)")
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
     axes.legend()
-    save_figure(figure, path_png)
 
 
 def plot_error_over_time(

@@ -300,12 +300,17 @@ def make_detector(world_map: Map, config: Config) -> LoopDetector:
     """The detector ``loop.detector`` names; bag of words reads the vocabulary ``loop.vocabulary``."""
     if config.loop.detector != "bow":
         return GgsDetector(world_map, config.loop)
-    if not config.loop.vocabulary:
+    check_vocabulary_given(config)
+    return BowDetector(world_map, Vocabulary.load(config.loop.vocabulary), config.loop)
+
+
+def check_vocabulary_given(config: Config) -> None:
+    """Raise `ConfigError` saying how to build a vocabulary when the bow detector has none."""
+    if config.loop.detector == "bow" and not config.loop.vocabulary:
         raise ConfigError(
             "loop.detector: bow needs a vocabulary: build one with `pld-slam vocabulary build IMAGE_DIR... "
             "--out vocab.npz`, then pass --set loop.vocabulary=vocab.npz"
         )
-    return BowDetector(world_map, Vocabulary.load(config.loop.vocabulary), config.loop)
 
 
 def _reference_keyframe(kind: Landmarks, landmark: int, row: dict[int, int]) -> int:

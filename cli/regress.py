@@ -1,0 +1,60 @@
+"""``pld-slam regress``: run the cells of a baseline and fail when trajectory error got worse."""
+
+import os
+from pathlib import Path
+
+import click
+from tqdm import tqdm
+
+from pld_slam.report.regress import (
+    add_sequences,
+    check_baseline,
+    format_verdicts,
+    read_baseline,
+    select_cells,
+    updated_baseline,
+    write_baseline,
+)
+from pld_slam_cli.config import set_option
+
+EXIT_REGRESSED = 1
+
+
+@click.command("regress")
+@click.argument("baseline_path", metavar="BASELINE.json", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("sequence_dirs", nargs=-1, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--update", is_flag=True,
+              help="Rewrite the baseline's ATE values from this run (and add cells for new SEQUENCE_DIRs).")
+@set_option
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=Path("runs") / "regress",
+              show_default=True, help="Where the cells run (always afresh) and synthetic sequences are generated.")
+@click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default="cores",
+              help="Cells run at once.")
+@click.pass_context
+def regress_command(ctx: click.Context, baseline_path: Path, sequence_dirs: tuple[Path, ...], update: bool,
+                    overrides: tuple[str, ...], out: Path, workers: int) -> None:
+    """Run the cells BASELINE.json lists and compare each ATE with the recorded one.
+
+    Exits 1 with a table of what got worse when a cell's ATE exceeds its baseline by more
+    than the tolerance (default 10 % + 1 mm) or its run fails. Real sequences are found
+    under $PLD_SLAM_DATA (cells without it are skipped, saying so). With SEQUENCE_DIRs,
+    only the cells on those sequences run. --set applies to every cell (e.g. to check
+    that a change of parameter worsens nothing).
+    """
+    baseline = read_baseline(baseline_path, missing_ok=update)
+    if update and sequence_dirs:
+        baseline = add_sequences(baseline, sequence_dirs)
+    checked = select_cells(baseline, sequence_dirs, out)
+    with tqdm(total=len(checked["cells"]), desc="cells", unit="cell", disable=None) as bar:
+        verdicts = check_baseline(checked, out, overrides, workers, on_done=lambda row: bar.update())
+    click.echo(format_verdicts(verdicts))
+    if update:
+        write_baseline(baseline_path, updated_baseline(baseline, verdicts))
+        click.echo(f"updated {baseline_path}")
+        return
+    regressed = [v for v in verdicts if v.regressed]
+    if regressed:
+        click.echo(f"regression: {len(regressed)} of {len(verdicts)} cells got worse or failed", err=True)
+        ctx.exit(EXIT_REGRESSED)
+    click.echo(f"no regression ({sum(v.status == 'pass' for v in verdicts)} passed, "
+               f"{sum(v.status == 'skipped' for v in verdicts)} skipped)")

@@ -1,0 +1,1 @@
+"""Experiments over many runs: ablation suites, their cells and tables, regression checks."""

@@ -1,0 +1,95 @@
+"""An ablation from start to report: plan the cells, run the pending ones, write the tables.
+
+`prepare_ablation` opens the sequences, plans the cells (`cells.plan_cells`), and writes
+``ablation.json`` and each sequence's ground truth into the output folder; `runner.run_cells`
+runs what is not finished; `write_report` (also ``pld-slam ablate --report DIR``, which runs
+nothing) builds from the recorded cells:
+
+- ``results.csv``: one tidy row per cell (`store.ROW_COLUMNS`);
+- ``table.md``, ``table.tex``, ``table.csv``: the paper's layout (`tables`);
+- ``plots/trajectories_SEQUENCE.png`` and ``plots/ate.png`` (`plots`).
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from pld_slam.io.run_output import TRAJECTORY_TUM
+from pld_slam.io.trajectory import read_tum
+from pld_slam.report.cells import CellSpec, open_sequences, plan_cells
+from pld_slam.report.plots import plot_ate_bars, plot_variant_trajectories
+from pld_slam.report.store import (
+    ROW_COLUMNS,
+    cell_folder,
+    folder_name,
+    groundtruth_path,
+    read_ablation,
+    recorded_rows,
+    write_ablation,
+    write_groundtruth,
+)
+from pld_slam.report.suite import Suite
+from pld_slam.report.tables import PaperTable, paper_table, to_csv, to_latex, to_markdown
+
+RESULTS = "results.csv"
+
+
+def prepare_ablation(
+    out: Path, sequence_dirs: Sequence[Path], suite: Suite, overrides: Sequence[str] = (),
+    max_frames: int | None = None,
+) -> list[CellSpec]:
+    """Open the sequences, plan every cell, and write ``ablation.json`` and the ground truths.
+
+    Raises
+    ------
+    PldSlamError
+        For an unreadable sequence or an invalid cell config, before anything runs.
+    """
+    sequences = open_sequences(sequence_dirs)
+    cells = plan_cells(sequences, suite, overrides, max_frames)
+    labels = list(dict.fromkeys(spec.sequence for spec in cells))
+    write_ablation(out, suite, labels, [str(Path(d).resolve()) for d in sequence_dirs])
+    for label, sequence in zip(labels, sequences, strict=True):
+        write_groundtruth(out, label, sequence.groundtruth)
+    return cells
+
+
+def write_report(out: Path) -> PaperTable:
+    """Write results.csv, the tables and the plots of the cells recorded in ``out``; return the table.
+
+    Raises
+    ------
+    PldSlamError
+        When ``out`` is not the output folder of an ablation.
+    """
+    out = Path(out)
+    ablation = read_ablation(out)
+    rows = recorded_rows(out)
+    pd.DataFrame(rows, columns=list(ROW_COLUMNS)).to_csv(out / RESULTS, index=False)
+    table = paper_table(rows, ablation["sequences"], ablation["variants"])
+    (out / "table.md").write_text(to_markdown(table))
+    (out / "table.tex").write_text(to_latex(table))
+    (out / "table.csv").write_text(to_csv(table))
+    plots = out / "plots"
+    plots.mkdir(exist_ok=True)
+    plot_ate_bars(plots / "ate.png", table)
+    for sequence in ablation["sequences"]:
+        plot_variant_trajectories(plots / f"trajectories_{folder_name(sequence)}.png", _groundtruth(out, sequence),
+                                  _estimates(out, sequence, ablation["variants"]), title=sequence)
+    return table
+
+
+def _groundtruth(out: Path, sequence: str):
+    path = groundtruth_path(out, sequence)
+    return read_tum(path) if path.is_file() else None
+
+
+def _estimates(out: Path, sequence: str, variants: Sequence[str]) -> dict:
+    """Each variant's estimate of ``sequence`` that has a trajectory file, by variant name."""
+    estimates = {}
+    for variant in variants:
+        path = cell_folder(out, sequence, variant) / TRAJECTORY_TUM
+        if path.is_file():
+            estimates[variant] = read_tum(path)
+    return estimates
