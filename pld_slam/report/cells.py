@@ -240,6 +240,8 @@ def _status(returncode: int, stderr: str, timed_out: bool, timeout: float | None
             return "failed", f"killed by signal {-returncode} ({signal.Signals(-returncode).name})"
         lines = [line.strip() for line in stderr.splitlines() if line.strip()]
         return "failed", lines[-1] if lines else f"exit code {returncode}"
+    if "summary.json" not in files:
+        return "failed", "the run wrote no summary.json"
     summary = json.loads(files["summary.json"])
     if not summary["completed"]:
         return "stopped", str(summary["stop_reason"])
