@@ -30,4 +30,4 @@ def test_config_files_install_as_package_data():
     tool = _pyproject()["tool"]["setuptools"]
     assert tool["package-dir"]["pld_slam.configs"] == "configs"
     assert "pld_slam.configs" in tool["packages"]
-    assert tool["package-data"]["pld_slam.configs"] == ["*.yaml"]
+    assert tool["package-data"]["pld_slam.configs"] == ["*.yaml", "ablations/*.yaml"]

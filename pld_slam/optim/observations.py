@@ -34,10 +34,9 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.optim.line_reprojection import (
     LineErrorRows,
     line_horizontal_rows,
-    line_row_errors,
     line_vertical_rows,
 )
-from pld_slam.optim.point_reprojection import point_reprojection_error
+from pld_slam.optim.point_reprojection import poses_and_index, stereo_row_errors
 
 
 @dataclass(frozen=True)
@@ -241,27 +240,49 @@ class WhitenedRows:
         return dataclasses.replace(self, points_w=points_w, line_rows=line_rows)
 
     def evaluate(
-        self, camera: StereoCamera, point_T_c_w: np.ndarray, line_T_c_w: np.ndarray, min_depth: float
+        self,
+        camera: StereoCamera,
+        point_T_c_w: np.ndarray,
+        line_T_c_w: np.ndarray,
+        min_depth: float,
+        point_pose: np.ndarray | None = None,
+        line_pose: np.ndarray | None = None,
     ) -> RowEvaluation:
-        """All rows at their poses: one ``T_c_w`` (4, 4) for all points / line rows, or one per
-        point (N, 4, 4) and per line row (4 Mv + 2 Mh, 4, 4)."""
-        point = point_reprojection_error(camera, point_T_c_w, self.points_w, self.stereo_px, min_depth)
-        line = line_row_errors(camera, line_T_c_w, self.line_rows, min_depth)
-        return RowEvaluation(
-            residual=np.concatenate([self._whiten_points(point.residual).ravel(), line.residual]),
-            jac_pose=np.concatenate([self._whiten_points(point.jac_pose).reshape(-1, 6), line.jac_pose]),
-            jac_landmark=np.concatenate([self._whiten_points(point.jac_point).reshape(-1, 3), line.jac_endpoint]),
-            valid=np.concatenate([np.repeat(point.valid, 3), line.valid]),
-        )
+        """All rows at their poses: one ``T_c_w`` (4, 4) for all points / line rows, one per point
+        (N, 4, 4) and per line row (4 Mv + 2 Mh, 4, 4), or K poses (K, 4, 4) with the pose of
+        each point ``point_pose`` (N,) and of each line row ``line_pose``.
 
-    def _whiten_points(self, rows: np.ndarray) -> np.ndarray:
-        """Point rows (N, 3, ...) of ``u_left, v, u_right`` (values or derivatives) as whitened
-        ``u_left, v`` and disparity ``u_left - u_right`` rows (module docstring)."""
-        weight = self.point_weight.reshape(self.point_weight.shape + (1,) * (rows.ndim - 2))
-        whitened = np.empty_like(rows)
-        whitened[:, :2] = rows[:, :2] * weight[:, :2]
-        whitened[:, 2] = (rows[:, 0] - rows[:, 2]) * weight[:, 2]
-        return whitened
+        Point and line rows are evaluated together, in one call of
+        `pld_slam.optim.point_reprojection.stereo_row_errors` (`_point_rows` and
+        `LineErrorRows.stereo_axes` give their axes).
+        """
+        n_points, n_line_rows = len(self.points_w), len(self.line_rows.offsets)
+        point_poses, point_index = poses_and_index(point_T_c_w, n_points, point_pose)
+        line_poses, line_index = poses_and_index(line_T_c_w, n_line_rows, line_pose)
+        point_axes, point_offsets = self._point_rows()
+        rows = stereo_row_errors(
+            camera,
+            np.concatenate([point_poses, line_poses]),
+            np.concatenate([np.repeat(self.points_w, 3, axis=0), self.line_rows.endpoints_w]),
+            np.concatenate([point_axes, self.line_rows.stereo_axes]),
+            np.concatenate([point_offsets, self.line_rows.offsets]),
+            min_depth,
+            np.concatenate([np.repeat(point_index, 3), line_index + len(point_poses)]),
+        )
+        return RowEvaluation(rows.residual, rows.jac_pose, rows.jac_point, rows.valid)
+
+    def _point_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axes (3 N, 3) over ``(u_left, v, u_right)`` and offsets (3 N,) of the whitened point rows:
+        ``u_left / sigma``, ``v / sigma`` and the disparity ``(u_left - u_right) / sigma_d``, each
+        predicted minus observed (module docstring)."""
+        n = len(self.points_w)
+        axes = np.zeros((n, 3, 3))
+        axes[:, 0, 0] = self.point_weight[:, 0]
+        axes[:, 1, 1] = self.point_weight[:, 1]
+        axes[:, 2, 0] = self.point_weight[:, 2]
+        axes[:, 2, 2] = -self.point_weight[:, 2]
+        offsets = -np.einsum("nij,nj->ni", axes, self.stereo_px)
+        return axes.reshape(3 * n, 3), offsets.ravel()
 
     def chi2(self, evaluation: RowEvaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Squared whitened norm of every point (N,), vertical term (Mv,, both images) and horizontal term (Mh,).
@@ -322,3 +343,4 @@ def _pairs_side_by_side(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return np.stack([left.reshape(n, 2, *left.shape[1:]), right.reshape(n, 2, *right.shape[1:])], axis=1).reshape(
         4 * n, *left.shape[1:]
     )
+
