@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import pytest
 from click.testing import CliRunner
@@ -16,7 +17,7 @@ from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import ConfigError
 from pld_slam.report.ablation import prepare_ablation, write_report
-from pld_slam.report.cells import cell_key, execute_cell, plan_cells, sequence_identity
+from pld_slam.report.cells import cell_key, execute_cell, plan_cells, sequence_identity, unique_labels
 from pld_slam.report.runner import run_cells
 from pld_slam.report.store import ROW_COLUMNS, cell_dir, is_finished, read_cell, recorded_rows
 from pld_slam.report.suite import BUILTIN_SUITES, Suite, Variant, load_suite
@@ -90,6 +91,15 @@ def test_a_cells_key_depends_on_its_variant_and_the_common_overrides(tiny):
     assert lines.key != points.key
     assert plan_cells([sequence], TWO_VARIANTS)[0].key == lines.key
     assert plan_cells([sequence], TWO_VARIANTS, ["points.n_features=500"])[0].key != lines.key
+
+
+def test_sequences_of_the_same_name_are_labelled_by_their_folders_then_numbered():
+    def seq(name, root):
+        return SimpleNamespace(name=name, root=root)
+
+    sequences = [seq("synth_dynamic", "/a/seed0"), seq("synth_dynamic", "/a/seed1"), seq("06", "/k/06"),
+                 seq("synth_dynamic", "/b/seed0")]
+    assert unique_labels(sequences) == ["seed0", "seed1", "06", "seed0-2"]
 
 
 # --- running, resuming, failing -----------------------------------------------------------

@@ -121,8 +121,11 @@ def cell_key(identity: dict, config: Config, max_frames: int | None) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def unique_labels(names: Sequence[str]) -> list[str]:
-    """``names`` with repeats made unique by a suffix: ``06``, ``06-2``, ``06-3``."""
+def unique_labels(sequences: Sequence[StereoSequence]) -> list[str]:
+    """A table label per sequence: its name, or its folder's name where names repeat (synthetic
+    sequences of several seeds are all ``synth_dynamic``), then a suffix ``-2``, ``-3`` if still repeated."""
+    names = [sequence.name for sequence in sequences]
+    names = [Path(s.root).name if names.count(s.name) > 1 else s.name for s in sequences]
     seen: dict[str, int] = {}
     labels = []
     for name in names:
@@ -157,7 +160,7 @@ def plan_cells(
         vocabulary): before anything runs.
     """
     cells = []
-    for sequence, label in zip(sequences, unique_labels([s.name for s in sequences]), strict=True):
+    for sequence, label in zip(sequences, unique_labels(sequences), strict=True):
         identity = sequence_identity(sequence)
         for variant in suite.variants:
             config = load_run_config(sequence, (), (*overrides, *variant.overrides)).config
