@@ -76,7 +76,7 @@ def write_report(out: Path) -> PaperTable:
     plot_ate_bars(plots / "ate.png", table)
     for sequence in ablation["sequences"]:
         plot_variant_trajectories(plots / f"trajectories_{folder_name(sequence)}.png", _groundtruth(out, sequence),
-                                  _estimates(out, sequence, ablation["variants"]), title=sequence)
+                                  _estimates(out, [r for r in rows if r["sequence"] == sequence]), title=sequence)
     return table
 
 
@@ -85,11 +85,12 @@ def _groundtruth(out: Path, sequence: str):
     return read_tum(path) if path.is_file() else None
 
 
-def _estimates(out: Path, sequence: str, variants: Sequence[str]) -> dict:
-    """Each variant's estimate of ``sequence`` that has a trajectory file, by variant name."""
+def _estimates(out: Path, rows: Sequence[dict]) -> dict:
+    """The estimate of each cell of ``rows`` whose run completed (``ok``), by variant name: a
+    failed or stopped run's partial trajectory would pass for the variant's result in the plot."""
     estimates = {}
-    for variant in variants:
-        path = cell_folder(out, sequence, variant) / TRAJECTORY_TUM
-        if path.is_file():
-            estimates[variant] = read_tum(path)
+    for row in rows:
+        path = cell_folder(out, row["sequence"], row["variant"]) / TRAJECTORY_TUM
+        if row["status"] == "ok" and path.is_file():
+            estimates[row["variant"]] = read_tum(path)
     return estimates
