@@ -9,7 +9,12 @@ from tqdm import tqdm
 from pld_slam.datasets import StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
-from pld_slam.io.run_output import write_run_outputs
+from pld_slam.io.run_output import (
+    TRAJECTORY_PARTIAL,
+    PartialTrajectory,
+    create_output_folder,
+    write_run_outputs,
+)
 from pld_slam.run_config import load_run_config
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackedFrame
@@ -61,8 +66,12 @@ def format_run_table(summary: dict) -> str:
 
 
 def overlay_writer(folder: Path, sequence: StereoSequence):
-    """A `System` observer writing each frame's dynamic-label overlay as ``folder/NNNNNN.png``."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """A `System` observer writing each frame's dynamic-label overlay as ``folder/NNNNNN.png``.
+
+    The folder is created here, before the first frame, so that one that cannot be
+    created stops the run (`OutputError`) before any work is done.
+    """
+    create_output_folder(folder)
 
     def write(frame: StereoFrame, tracked: TrackedFrame) -> None:
         if tracked.dynamic is not None:
@@ -79,11 +88,21 @@ def run_and_write(
 
     The configuration is `load_run_config`'s: defaults, the dataset family's file, then
     ``config_paths`` and ``overrides``.
+
+    The output folder is created and written to (``trajectory.partial.tum.txt``, see
+    `PartialTrajectory`) after the input and config are checked and before the first
+    frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
+    after every frame is lost. Each frame's tracked pose is appended to that file as
+    the run goes, so a run killed hard keeps its poses so far; the file is deleted once
+    the final trajectory files are written.
     """
     sequence = open_sequence(sequence_dir)
     run_config = load_run_config(sequence, config_paths, overrides)
     observer = None if save_dynamic is None else overlay_writer(save_dynamic, sequence)
-    system = System(sequence, run_config.config, observer)
+    partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
+    system = System(sequence, run_config.config, observer,
+                    record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
+    partial.start()
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):
@@ -92,8 +111,10 @@ def run_and_write(
     try:
         system.run(max_frames=max_frames, progress=progress)
     finally:
+        partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
         write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth, title=sequence.name)
+        partial.discard()
     return summary
 
 
@@ -117,7 +138,9 @@ def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, m
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
     first camera), summary.json (frames, failures, timing, real-time factor, ATE/RPE
     when the sequence has ground truth, the config and its sources) and trajectory.png.
-    Ctrl-C or an error mid-run still writes the trajectory so far.
+    Ctrl-C or an error mid-run still writes the trajectory so far; while the run goes,
+    trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run is
+    killed, deleted once the final files are written).
     """
     out = out if out is not None else Path("runs") / open_sequence(sequence_dir).name
     summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic)

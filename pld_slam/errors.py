@@ -20,3 +20,7 @@ class TrajectoryError(PldSlamError):
 
 class ConfigError(PldSlamError):
     """A configuration file or override names an unknown key or has a bad value."""
+
+
+class OutputError(PldSlamError):
+    """An output folder or file cannot be created or written (the message says which and why)."""

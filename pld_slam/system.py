@@ -117,11 +117,22 @@ class RunResult:
 FrameObserver = Callable[[StereoFrame, TrackedFrame], None]
 """Called with each frame that had images and what tracking made of it (e.g. to draw overlays)."""
 
+RecordObserver = Callable[[FrameRecord], None]
+"""Called with the record of every frame as it is kept, skipped frames included (e.g. to
+stream the poses to disk while the run goes)."""
+
 
 class System:
-    """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame."""
+    """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame.
 
-    def __init__(self, sequence: StereoSequence, config: Config, observer: FrameObserver | None = None) -> None:
+    ``observer`` sees each frame with images and its `TrackedFrame`; ``record_observer``
+    sees every frame's `FrameRecord`, a frame whose images could not be read included,
+    which is what a stream of the trajectory needs (the written trajectory has a row for
+    every frame).
+    """
+
+    def __init__(self, sequence: StereoSequence, config: Config, observer: FrameObserver | None = None,
+                 record_observer: RecordObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
         if config.dynamic.from_masks and sequence.dynamic_mask_paths is None:
@@ -136,6 +147,7 @@ class System:
         self.tracker = Tracker(sequence.camera, config, world_map)
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing)
         self._observer = observer
+        self._record_observer = record_observer
 
     def process_frame(self, index: int) -> FrameRecord:
         """Load, extract and track frame ``index``; an unreadable frame is skipped, not fatal.
@@ -253,6 +265,8 @@ class System:
     def _add(self, record: FrameRecord, start: float) -> None:
         self.result.records.append(record)
         self.result.wall_seconds += time.perf_counter() - start
+        if self._record_observer is not None:
+            self._record_observer(record)
 
 
 def _new_keyframe(

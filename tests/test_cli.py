@@ -1,8 +1,13 @@
 """The ``pld-slam`` commands: output, JSON keys, exit codes and one-line errors."""
 
 import json
+import os
 import re
 import shutil
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -12,7 +17,8 @@ from conftest import require
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
-from pld_slam.io.trajectory import read_kitti, write_kitti, write_tum
+from pld_slam.io.trajectory import read_kitti, read_tum, write_kitti, write_tum
+from pld_slam.synth.writer import write_sequence
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
@@ -198,3 +204,87 @@ def test_run_reports_dynamic_labels_and_saves_overlays(synthetic_sequence, tmp_p
     dynamic = json.loads((tmp_path / "run" / "summary.json").read_text())["dynamic"]
     assert len(dynamic["per_frame"]) == 6
     assert dynamic["points"]["on_moving_objects"] > 0  # the synthetic sequence has masks
+
+
+# ---------------------------------------------------------------- runs that fail safe
+
+
+def test_run_stops_on_left_and_right_images_that_do_not_pair_naming_the_first(synthetic_sequence, tmp_path):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    (sequence / "image_0" / "000001.png").unlink()  # a frame missing on each side: counts stay equal
+    (sequence / "image_1" / "000002.png").unlink()
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR
+    unpaired, other = sequence / "image_1" / "000001.png", sequence / "image_0"
+    assert result.output == f"error: {unpaired}: no image with the same name in {other}\n"
+
+
+@pytest.fixture
+def no_frame_may_run(monkeypatch):
+    """Makes processing any frame fail the test: the check must come before the first frame."""
+
+    def refuse(self, index):
+        raise AssertionError(f"frame {index} processed before the output folder was checked")
+
+    monkeypatch.setattr("pld_slam.system.System.process_frame", refuse)
+
+
+@pytest.mark.parametrize("command", ["run", "demo"])
+def test_an_output_folder_under_a_file_is_a_one_line_error_before_the_first_frame(
+        synthetic_sequence, tmp_path, no_frame_may_run, command):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder\n")
+    out = a_file / "run"
+    args = ("run", synthetic_sequence, "--out", out) if command == "run" else ("demo", "--out", out, "--frames", 2)
+    result = run(*args)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output.startswith(f"error: {out}: cannot write (") and result.output.count("\n") == 1
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0, reason="root writes despite permission bits")
+def test_an_output_folder_without_write_permission_is_a_one_line_error_before_the_first_frame(
+        synthetic_sequence, tmp_path, no_frame_may_run):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o555)
+    result = run("run", synthetic_sequence, "--out", locked)
+    locked.chmod(0o755)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output.startswith(f"error: {locked / 'trajectory.partial.tum.txt'}: cannot write (")
+
+
+def test_a_finished_run_leaves_no_partial_trajectory(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 3)
+    assert result.exit_code == 0, result.output
+    assert (out / "trajectory.tum.txt").is_file() and not (out / "trajectory.partial.tum.txt").exists()
+
+
+def test_a_run_killed_hard_keeps_the_poses_tracked_so_far(tmp_path):
+    sequence = tmp_path / "seq"
+    write_sequence(sequence, "static", 30, size=(320, 240))
+    out = tmp_path / "run"
+    partial = out / "trajectory.partial.tum.txt"
+    child = subprocess.Popen([sys.executable, "-m", "pld_slam_cli", "run", str(sequence), "--out", str(out)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300.0
+        while pose_rows(partial) < 4 and child.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert child.poll() is None, "the run ended before it could be killed"
+        child.send_signal(signal.SIGKILL)
+    finally:
+        child.kill()
+        child.wait()
+    assert not (out / "trajectory.tum.txt").exists()  # killed before the end: only the partial file
+    estimate = read_tum(partial)  # every row a valid TUM row (a half-written last row would fail here)
+    truth = open_sequence(sequence).groundtruth
+    assert len(estimate) >= 4 and np.array_equal(estimate.timestamps, truth.timestamps[: len(estimate)])
+    assert np.allclose(estimate.poses[0], np.eye(4), atol=1e-9)
+    np.testing.assert_allclose(estimate.positions, truth.positions[: len(estimate)], atol=0.05)
+
+
+def pose_rows(path) -> int:
+    """Complete pose lines of a TUM file being written (0 while it does not exist)."""
+    if not path.exists():
+        return 0
+    return sum(1 for line in path.read_text().splitlines(keepends=True) if line.endswith("\n") and line[0] != "#")

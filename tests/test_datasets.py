@@ -343,7 +343,7 @@ def test_kitti_shorter_poses_cover_the_first_frames(tmp_path):
         (rewrite("times.txt", "0.0", "0.1"), "times.txt: 2 times for 3 image pairs"),
         (rewrite("times.txt", "0.0", "zero", "0.2"), "times.txt:2: not a time"),
         (rewrite("times.txt", "0.0", "0.2", "0.1"), "times.txt:3: times must increase"),
-        (remove("image_1/000002.png"), "3 left images but 2 right images"),
+        (remove("image_1/000002.png"), "image_0/000002.png: no image with the same name in "),
         (empty("image_1"), "image_1: no .png images"),
         (lambda f: write_images(f / "dynamic_masks", ["000000.png"]), "dynamic_masks: 1 masks for 3 frames"),
         (rewrite("image_0/000000.png", "not a png"), "000000.png: not a PNG image"),
@@ -466,8 +466,8 @@ def shift_first_timestamp(relative: str):
 @pytest.mark.parametrize(
     "break_it, expected",
     [
-        (drop_last_row("cam1/data.csv"), "cam0/data.csv: 3 images but"),
-        (shift_first_timestamp("cam1/data.csv"), "is in only one of the two image lists"),
+        (drop_last_row("cam1/data.csv"), "cam0/data/1403715273362142976.png: no image with the same timestamp in "),
+        (shift_first_timestamp("cam1/data.csv"), "cam0/data/1403715273262142976.png: no image with the same timestamp"),
         (remove("cam0/data.csv"), "cam0/data.csv: image list not found"),
         (rewrite("cam0/data.csv", "#timestamp [ns],filename", "12;a.png"), "cam0/data.csv:2: expected"),
         (remove("cam1/sensor.yaml"), "cam1/sensor.yaml: YAML calibration file not found"),
@@ -622,7 +622,7 @@ def test_generic_bad_calibration(tmp_path, calibration, expected):
     "break_it, expected",
     [
         (remove("calib.yaml"), "calib.yaml: YAML calibration file not found"),
-        (remove("right/0002.png"), "3 left images but 2 right images"),
+        (remove("right/0002.png"), "left/0002.png: no image with the same name in "),
         (empty("right"), "right: no .png or .jpg or .jpeg images"),
         (rewrite("times.txt", "0.0"), "times.txt: 1 times for 3 image pairs"),
         (rewrite("groundtruth.txt", "0.0 1 2 3 0 0 0 1", "0.1 1 2"), "groundtruth.txt:2"),
@@ -633,3 +633,46 @@ def test_generic_bad_folder(tmp_path, break_it, expected):
     break_it(folder)
     error = TrajectoryError if "groundtruth" in expected else DatasetError
     assert expected in open_error(folder, error)
+
+
+# ---------------------------------------------------------------- left/right pairing
+
+
+def rename(relative: str, new_name: str):
+    """A folder change: give the file ``relative`` the name ``new_name`` in its folder."""
+    return lambda folder: (folder / relative).rename((folder / relative).with_name(new_name))
+
+
+def drop_both(left: str, right: str):
+    """A folder change: delete another frame on each side, so that the counts stay equal."""
+    return lambda folder: (remove(left)(folder), remove(right)(folder))
+
+
+@pytest.mark.parametrize(
+    "make, break_it, unpaired, other",
+    [
+        (make_kitti_odometry, drop_both("image_0/000001.png", "image_1/000002.png"), "image_1/000001.png", "image_0"),
+        (make_kitti_raw, drop_both("image_00/data/0000000002.png", "image_01/data/0000000003.png"),
+         "image_01/data/0000000002.png", "image_00/data"),
+        (lambda root, n: make_generic(root, rectified_calibration(), n=n), rename("right/0001.png", "0004.png"),
+         "left/0001.png", "right"),
+    ],
+)
+def test_folder_layouts_pair_images_by_name(tmp_path, make, break_it, unpaired, other):
+    folder = make(tmp_path, n=4)
+    break_it(folder)
+    message = open_error(folder)
+    assert f"{unpaired}: no image with the same name in " in message
+    assert message.endswith(f"/{other}")
+
+
+def test_euroc_pairs_images_by_timestamp(tmp_path):
+    folder = make_euroc(tmp_path, n=4)
+    mav0 = folder / "mav0"
+    for camera, dropped in (("cam0", 1), ("cam1", 2)):  # a frame missing on each side, counts equal
+        csv = mav0 / camera / "data.csv"
+        lines = csv.read_text().splitlines()
+        csv.write_text("\n".join(lines[: dropped + 1] + lines[dropped + 2:]) + "\n")
+    message = open_error(folder)
+    assert "cam1/data/1403715273312142976.png: no image with the same timestamp in " in message
+    assert message.endswith("cam0/data.csv")

@@ -3,8 +3,9 @@
 Either the sequence folder or its ``mav0`` folder may be given.
 
 - Images: ``camK/data.csv`` (``timestamp [ns],filename``) lists ``camK/data/<filename>``;
-  cam0 (left) and cam1 (right) rows are paired by equal timestamps. Unequal counts or a
-  timestamp of one camera missing from the other raise `DatasetError` naming both files.
+  cam0 (left) and cam1 (right) rows are paired by equal timestamps
+  (`pld_slam.datasets.files.paired_images`); an image whose timestamp the other camera's
+  list lacks raises `DatasetError` naming that image and the other list.
   Frame times are the nanosecond timestamps divided by 1e9 [s].
 - Camera: the raw images are distorted; they are rectified as they are read (see
   `pld_slam.datasets.rectify`, ``alpha = 0``) from the two ``sensor.yaml`` files:
@@ -27,7 +28,7 @@ import numpy as np
 
 from pld_slam.datasets.base import StereoSequence
 from pld_slam.datasets.calibration import read_yaml_calibration
-from pld_slam.datasets.files import groundtruth_at_frames
+from pld_slam.datasets.files import groundtruth_at_frames, paired_images
 from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import inverse
@@ -77,7 +78,12 @@ def load(folder: Path) -> StereoSequence:
     left_csv, right_csv = mav0 / "cam0" / "data.csv", mav0 / "cam1" / "data.csv"
     left_ns, left_names = read_image_list(left_csv)
     right_ns, right_names = read_image_list(right_csv)
-    require_same_timestamps(left_csv, left_ns, right_csv, right_ns)
+    left_paths, right_paths = paired_images(
+        _images_by_timestamp(left_ns, left_names, mav0 / "cam0" / "data"),
+        _images_by_timestamp(right_ns, right_names, mav0 / "cam1" / "data"),
+        (left_csv, right_csv),
+        "timestamp",
+    )
     rectification, T_b_rect = _rectify_cameras(mav0)
     timestamps = left_ns / 1e9
     return StereoSequence(
@@ -86,8 +92,8 @@ def load(folder: Path) -> StereoSequence:
         root=folder,
         camera=rectification.camera,
         timestamps=timestamps,
-        left_paths=[mav0 / "cam0" / "data" / name for name in left_names],
-        right_paths=[mav0 / "cam1" / "data" / name for name in right_names],
+        left_paths=left_paths,
+        right_paths=right_paths,
         groundtruth=_groundtruth(mav0, timestamps, T_b_rect),
         rectifier=rectification,
     )
@@ -141,20 +147,9 @@ def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
     return np.array([row[0] for row in rows], dtype=np.int64), [row[1] for row in rows]
 
 
-def require_same_timestamps(
-    left_csv: Path, left_ns: np.ndarray, right_csv: Path, right_ns: np.ndarray
-) -> None:
-    """Raise `DatasetError` naming both lists unless cam0 and cam1 have the same timestamps."""
-    if len(left_ns) != len(right_ns):
-        raise DatasetError(
-            f"{left_csv}: {len(left_ns)} images but {right_csv} lists {len(right_ns)}"
-        )
-    unmatched = np.setxor1d(left_ns, right_ns)
-    if unmatched.size:
-        raise DatasetError(
-            f"{left_csv}, {right_csv}: timestamp {unmatched[0]} ns is in only one of the "
-            "two image lists"
-        )
+def _images_by_timestamp(stamps_ns: np.ndarray, names: list[str], data_folder: Path) -> dict[int, Path]:
+    """The files ``data_folder/name`` of an image list keyed by their timestamps [ns]."""
+    return {int(stamp): data_folder / name for stamp, name in zip(stamps_ns, names, strict=True)}
 
 
 def read_camera_sensor(path: Path) -> CameraSensor:

@@ -1,8 +1,8 @@
-"""Files shared by the dataset layouts: image listings, PNG sizes, times files, and
-ground truth sampled at frame times."""
+"""Files shared by the dataset layouts: image listings, left/right pairing, PNG sizes,
+times files, and ground truth sampled at frame times."""
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +27,54 @@ def image_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     if not paths:
         raise DatasetError(f"{folder}: no {' or '.join(suffixes)} images")
     return paths
+
+
+def paired_image_folders(
+    left_folder: Path, right_folder: Path, suffixes: tuple[str, ...]
+) -> tuple[list[Path], list[Path]]:
+    """The images of two folders (`image_files`) paired by file name (`paired_images`).
+
+    Names must match exactly, suffix included (``000002.png`` pairs with ``000002.png``
+    only), as every folder layout we read names both sides alike.
+    """
+    left = {path.name: path for path in image_files(left_folder, suffixes)}
+    right = {path.name: path for path in image_files(right_folder, suffixes)}
+    return paired_images(left, right, (left_folder, right_folder), "name")
+
+
+def paired_images(
+    left: Mapping[Hashable, Path],
+    right: Mapping[Hashable, Path],
+    sources: tuple[Path, Path],
+    key: str,
+) -> tuple[list[Path], list[Path]]:
+    """The left and right image files paired by equal keys, in the left list's order (its
+    frame order: the timestamps of EuRoC's ``data.csv`` rows stay aligned with the paths).
+
+    Every layout pairs its images here: by file name (`paired_image_folders`: KITTI odometry,
+    KITTI raw, generic) or by timestamp (EuRoC's ``data.csv``). We pair by key, never by
+    position, because a frame missing on each side leaves the counts equal and would
+    shift every later pair by one without any error, and the run would silently track
+    wrong stereo pairs.
+
+    Parameters
+    ----------
+    left, right : mapping of key to Path
+        The image files of each camera by key (sortable, e.g. a name or integer ns).
+    sources : (Path, Path)
+        Where the left and right lists come from (folders or image lists), for messages.
+    key : str
+        What the key is (``name``, ``timestamp``), for messages.
+
+    Raises `DatasetError` naming the first file (in key order) that has no partner,
+    and where its partner was looked for.
+    """
+    unpaired = sorted(left.keys() ^ right.keys())
+    if unpaired:
+        first = unpaired[0]
+        path, other = (left[first], sources[1]) if first in left else (right[first], sources[0])
+        raise DatasetError(f"{path}: no image with the same {key} in {other}")
+    return list(left.values()), [right[k] for k in left]
 
 
 def png_size(path: Path) -> tuple[int, int]:

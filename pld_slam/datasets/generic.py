@@ -3,8 +3,8 @@
 Folder::
 
     SEQUENCE/
-      left/            left images, .png or .jpg, paired with right/ in file-name order
-      right/           right images, as many as left/
+      left/            left images, .png or .jpg, paired with right/ by file name
+      right/           right images, one of the same name (suffix included) per left image
       calib.yaml       the calibration below (required)
       times.txt        optional: one time [s] per line and per image pair
       groundtruth.txt  optional: TUM format, "timestamp tx ty tz qx qy qz qw"
@@ -19,6 +19,9 @@ Folder::
     rectified: false           # optional, default false (see below)
     fps: 10                    # optional, default 10 (see below)
 
+- Images are paired by file name (`pld_slam.datasets.files.paired_images`), so both
+  folders must name a pair alike (``left/0001.png`` and ``right/0001.png``); a file
+  without a partner of the same name raises, naming it.
 - ``distortion``: OpenCV radial-tangential coefficients, 4 (k1 k2 p1 p2) or 5 (+ k3).
 - ``rectified: false`` (the default): the images are raw; they are rectified as they
   are read (`pld_slam.datasets.rectify`, ``alpha = 0``, same image size), which needs
@@ -51,7 +54,12 @@ from pld_slam.datasets.calibration import (
     read_yaml_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import IMAGE_SUFFIXES, groundtruth_at_frames, image_files, read_times
+from pld_slam.datasets.files import (
+    IMAGE_SUFFIXES,
+    groundtruth_at_frames,
+    paired_image_folders,
+    read_times,
+)
 from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
@@ -81,8 +89,7 @@ def matches(folder: Path) -> bool:
 def load(folder: Path) -> StereoSequence:
     """Open the generic sequence in ``folder`` (see the module docstring)."""
     folder = folder.resolve()
-    left_paths = image_files(folder / "left", IMAGE_SUFFIXES)
-    right_paths = image_files(folder / "right", IMAGE_SUFFIXES)
+    left_paths, right_paths = paired_image_folders(folder / "left", folder / "right", IMAGE_SUFFIXES)
     calibration = read_yaml_calibration(folder / "calib.yaml")
     timestamps = _frame_times(folder, len(left_paths), calibration)
     if _is_rectified(calibration):

@@ -1,7 +1,8 @@
 """KITTI odometry layout: ``.../sequences/NN/{image_0/, image_1/, calib.txt, times.txt}``.
 
 - Images: ``image_0/*.png`` (left) and ``image_1/*.png`` (right), already rectified,
-  paired in file-name order.
+  paired by file name (`pld_slam.datasets.files.paired_images`): a file without a
+  partner of the same name raises, naming it.
 - Camera: ``P0`` and ``P1`` of ``calib.txt``; fx, fy, cx, cy from ``P0`` and
   ``baseline = (P0[0, 3] - P1[0, 3]) / fx``. ``calib.txt`` has no image size; we read
   it from the header of the first left PNG (24 bytes), so opening decodes no image.
@@ -26,7 +27,7 @@ import numpy as np
 
 from pld_slam.datasets.base import StereoSequence
 from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
-from pld_slam.datasets.files import image_files, png_size, read_times
+from pld_slam.datasets.files import paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.trajectory import Trajectory
@@ -43,8 +44,7 @@ def matches(folder: Path) -> bool:
 def load(folder: Path) -> StereoSequence:
     """Open the KITTI odometry sequence in ``folder`` (see the module docstring)."""
     folder = folder.resolve()
-    left_paths = image_files(folder / "image_0", (".png",))
-    right_paths = image_files(folder / "image_1", (".png",))
+    left_paths, right_paths = paired_image_folders(folder / "image_0", folder / "image_1", (".png",))
     timestamps = read_times(folder / "times.txt", len(left_paths))
     calibration = read_kitti_calibration(folder / "calib.txt")
     camera = stereo_camera_from_projections(

@@ -1,7 +1,8 @@
 """KITTI raw layout: ``.../DATE/DATE_drive_NNNN_sync/{image_00/, image_01/, oxts/}``.
 
 - Images: ``image_00/data/*.png`` (left grey) and ``image_01/data/*.png`` (right grey),
-  synced and rectified, paired in file-name order.
+  synced and rectified, paired by file name (`pld_slam.datasets.files.paired_images`):
+  a file without a partner of the same name raises, naming it.
 - Times: ``image_00/timestamps.txt``, datetimes such as ``2011-09-26 13:04:32.351950336``,
   read as UTC seconds since the Unix epoch; the whole seconds and the nanoseconds are
   added once in float64, which keeps them to float64's resolution (about 0.2 us).
@@ -28,7 +29,7 @@ from pld_slam.datasets.calibration import (
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import image_files, read_times
+from pld_slam.datasets.files import paired_image_folders, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import inverse, make_pose
 from pld_slam.trajectory import Trajectory
@@ -54,8 +55,9 @@ def matches(folder: Path) -> bool:
 def load(folder: Path) -> StereoSequence:
     """Open the KITTI raw drive in ``folder`` (see the module docstring)."""
     folder = folder.resolve()
-    left_paths = image_files(folder / "image_00" / "data", (".png",))
-    right_paths = image_files(folder / "image_01" / "data", (".png",))
+    left_paths, right_paths = paired_image_folders(
+        folder / "image_00" / "data", folder / "image_01" / "data", (".png",)
+    )
     timestamps = read_times(
         folder / "image_00" / "timestamps.txt", len(left_paths), parse_line=datetime_seconds
     )

@@ -1,4 +1,10 @@
-"""The files of a run: trajectories (KITTI, TUM), summary.json, loops.csv and a trajectory plot."""
+"""The files of a run: trajectories (KITTI, TUM), summary.json, loops.csv and a trajectory plot,
+and the partial trajectory streamed while the run goes.
+
+Every OSError on output becomes an `OutputError` naming the path, so that an output
+folder that cannot be written reaches the user as one line, like bad input, and not as
+an internal error.
+"""
 
 import dataclasses
 import json
@@ -7,16 +13,83 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pld_slam.errors import OutputError
 from pld_slam.eval.plots import plot_trajectory_top_view
-from pld_slam.io.trajectory import write_kitti, write_tum
+from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_kitti, write_tum
 from pld_slam.loop.loop_closing import LoopCandidate
 from pld_slam.trajectory import Trajectory
 
 TRAJECTORY_KITTI = "trajectory.kitti.txt"
 TRAJECTORY_TUM = "trajectory.tum.txt"
+TRAJECTORY_PARTIAL = "trajectory.partial.tum.txt"
 SUMMARY = "summary.json"
 PLOT = "trajectory.png"
 LOOPS = "loops.csv"
+
+
+def output_error(path: Path, error: OSError) -> OutputError:
+    """The one-line `OutputError` of ``error``, naming the file it names, else ``path``."""
+    return OutputError(f"{error.filename or path}: cannot write ({error.strerror or error})")
+
+
+def create_output_folder(folder: Path) -> None:
+    """Create ``folder`` and its parents if needed; `OutputError` when that fails (e.g. under a file)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise output_error(folder, error) from None
+
+
+class PartialTrajectory:
+    """``T_w_c`` of each frame as tracked, appended to a TUM file while a run goes.
+
+    The final trajectory files are written once, at the end of a run, so a run killed
+    hard (SIGKILL, out of memory, a lost machine) would leave nothing; this file keeps
+    what was tracked until then. Each row is flushed to the operating system as it is
+    written, which survives a killed process (not a power cut: we do not fsync, as that
+    would cost a disk write per frame). The poses are those at tracking time; the final
+    files carry the later corrections of BA and loop closing, so the two may differ.
+
+    Opening the file (`start`) is also the check that the output folder can be created
+    and written, done before the first frame so that a bad ``--out`` costs nothing.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._file = None  # opened by start
+
+    def start(self) -> None:
+        """Create the folder and write the `TUM_HEADER` line; `OutputError` when either fails."""
+        create_output_folder(self.path.parent)
+        try:
+            self._file = self.path.open("w")
+            self._write_line(TUM_HEADER)
+        except OSError as error:
+            raise output_error(self.path, error) from None
+
+    def append(self, timestamp: float, T_w_c: np.ndarray) -> None:
+        """Append the TUM row of one frame (time [s], (4, 4) pose) and flush it."""
+        try:
+            self._write_line(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
+        except OSError as error:
+            raise output_error(self.path, error) from None
+
+    def _write_line(self, line: str) -> None:
+        """Write ``line`` and a newline, flushed to the operating system."""
+        self._file.write(line + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        """Close the file; it stays on disk."""
+        self._file.close()
+
+    def discard(self) -> None:
+        """Close and delete the file, once the final trajectory files hold every frame."""
+        self.close()
+        try:
+            self.path.unlink(missing_ok=True)
+        except OSError as error:
+            raise output_error(self.path, error) from None
 
 
 def write_run_outputs(
@@ -27,9 +100,20 @@ def write_run_outputs(
     The trajectory files hold one row per processed frame (``T_w_c``, world = first
     camera). ``loops.csv`` lists the loop candidates of the summary's ``loop`` section, one
     row each (written when the run had a loop stage and a frame); the plot marks the closed loops and
-    is skipped for fewer than 2 frames.
+    is skipped for fewer than 2 frames. A file that cannot be written raises `OutputError`
+    naming it.
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
+    create_output_folder(out_dir)
+    try:
+        return _write_run_files(out_dir, estimate, summary, groundtruth, title)
+    except OSError as error:
+        raise output_error(out_dir, error) from None
+
+
+def _write_run_files(
+    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str
+) -> list[Path]:
+    """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
     written = []
     if len(estimate) > 0:
         write_kitti(out_dir / TRAJECTORY_KITTI, estimate)

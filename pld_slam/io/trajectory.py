@@ -42,7 +42,8 @@ UNIT_TOLERANCE = 1e-2
 """Largest accepted deviation of a quaternion norm from 1, and of ``R^T R`` from I."""
 
 _NS_PER_S = 1_000_000_000
-_TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+"""The ``#`` line heading every TUM file we write."""
 _EUROC_HEADER = "#timestamp [ns],p_x [m],p_y [m],p_z [m],q_w [],q_x [],q_y [],q_z []"
 
 
@@ -234,11 +235,15 @@ def write_kitti(path, traj: Trajectory) -> None:
     _write_lines(path, traj, [" ".join(f"{v:.9e}" for v in row) for row in rows])
 
 
-def write_tum(path, traj: Trajectory) -> None:
-    """Write ``timestamp tx ty tz qx qy qz qw`` a line, all ``%.9f``, under a ``#`` header."""
+def tum_rows(traj: Trajectory) -> list[str]:
+    """The TUM rows of ``traj``: ``timestamp tx ty tz qx qy qz qw``, all ``%.9f``, no newline."""
     values = np.column_stack([traj.timestamps, traj.positions, _quaternions_xyzw(traj.poses)])
-    lines = [" ".join(f"{v:.9f}" for v in row) for row in values]
-    _write_lines(path, traj, [_TUM_HEADER, *lines])
+    return [" ".join(f"{v:.9f}" for v in row) for row in values]
+
+
+def write_tum(path, traj: Trajectory) -> None:
+    """Write `tum_rows` under the `TUM_HEADER` line."""
+    _write_lines(path, traj, [TUM_HEADER, *tum_rows(traj)])
 
 
 def write_euroc(path, traj: Trajectory) -> None:
