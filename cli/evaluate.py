@@ -8,7 +8,7 @@ import click
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import DatasetError, TrajectoryError
 from pld_slam.eval import EvalResult, evaluate, plot_error_over_time, plot_trajectory_top_view
-from pld_slam.io.trajectory import FORMATS, detect_format, read_trajectory
+from pld_slam.io.trajectory import FORMATS, detect_format, is_euroc_body_groundtruth, read_trajectory
 from pld_slam.trajectory import Trajectory
 
 _ROWS = (
@@ -22,14 +22,31 @@ _ROWS = (
 )
 
 
-def format_result_table(result: EvalResult) -> str:
-    """The metrics as an aligned two-column text table (None shows as n/a)."""
+def coverage_note(n_matched: int | None, n_frames: int) -> str | None:
+    """``evaluated on N of M frames`` when the accuracy covers fewer than all ``n_frames`` frames, else None.
+
+    A ground truth shorter than the run, or timestamps that do not pair, leave frames out
+    of every metric; we say so, because the numbers alone read as the whole run's.
+    """
+    if n_matched is None or n_matched >= n_frames:
+        return None
+    return f"evaluated on {n_matched} of {n_frames} frames"
+
+
+def format_result_table(result: EvalResult, n_estimated: int) -> str:
+    """The metrics as an aligned two-column text table (None shows as n/a).
+
+    ``n_estimated`` is the number of poses in the estimate, for `coverage_note`.
+    """
     values = result.as_dict()
     lines = []
     for label, key, unit, fmt in _ROWS:
         value = values[key]
         text = "n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip()
         lines.append(f"{label:<26}{text}")
+    coverage = coverage_note(result.n_matched, n_estimated)
+    if coverage:
+        lines.append(f"{'':<26}{coverage}")
     return "\n".join(lines)
 
 
@@ -48,6 +65,9 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
     ``gt`` is a trajectory file or a sequence folder (its ground truth in rectified cam0,
     first pose identity). KITTI files carry no timestamps: two KITTI files pair by row;
     a KITTI estimate against a sequence folder takes the frame times of the sequence.
+    EuRoC's body-frame ground truth file is compared as given, with a warning on stderr
+    (`is_euroc_body_groundtruth`): we do not convert it, because the file alone does not
+    say which camera the estimate is of; the sequence folder does.
     """
     est_format = detect_format(est) if fmt == "auto" else fmt
     estimate = read_trajectory(est, est_format)
@@ -58,6 +78,9 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
         if est_format == "kitti":
             estimate = _stamp_by_frame(estimate, sequence.timestamps, est)
         return sequence.groundtruth, estimate, False
+    if is_euroc_body_groundtruth(gt):
+        click.echo(f"warning: {gt} is EuRoC's ground truth of the body (IMU) frame, not of the camera; "
+                   "pass the sequence folder as GT to compare in the rectified left camera", err=True)
     gt_format = detect_format(gt) if fmt == "auto" else fmt
     if (gt_format == "kitti") != (est_format == "kitti"):
         raise TrajectoryError(
@@ -95,4 +118,4 @@ def eval_command(gt: Path, est: Path, fmt: str, align: str, max_diff: float, as_
                                  title=est.name, align=align, by_index=by_index, max_diff=max_diff)
         plot_error_over_time(plot_dir / "ate_over_time.png", groundtruth, estimate,
                              align=align, by_index=by_index, max_diff=max_diff)
-    click.echo(json.dumps(result.as_dict()) if as_json else format_result_table(result))
+    click.echo(json.dumps(result.as_dict()) if as_json else format_result_table(result, len(estimate)))

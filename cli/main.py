@@ -2,54 +2,74 @@
 
 A `PldSlamError` (bad folder, malformed file, invalid config) reaches the user as one line
 ``error: ...`` on stderr and exit code 2. Any other exception is a bug: one line asking
-for ``--verbose`` and exit code 1. ``--verbose`` re-raises so the traceback shows.
+for ``--verbose`` and exit code 1. Ctrl-C prints ``interrupted`` (with what a run wrote
+and where, `pld_slam_cli.run.RunInterrupted`) and exits with 130. ``--verbose`` prints
+the traceback before that line and changes nothing else, the exit code included.
+
+The commands are imported when one is invoked, not with this module: their imports
+(OpenCV, numba, evo, matplotlib) take seconds, and a Ctrl-C during them would otherwise
+escape as a Python traceback before the error policy above is in place.
 """
 
+import importlib
 import sys
+import traceback
 
 import click
 
 from pld_slam import __version__
 from pld_slam.errors import PldSlamError
-from pld_slam_cli.ablate import ablate_command
-from pld_slam_cli.config import config_command
-from pld_slam_cli.demo import demo_command
-from pld_slam_cli.evaluate import eval_command
-from pld_slam_cli.places import places_command
-from pld_slam_cli.regress import regress_command
-from pld_slam_cli.run import run_command
-from pld_slam_cli.synth import synth_command
-from pld_slam_cli.vocabulary import vocabulary_command
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
 
+_COMMANDS = {
+    "run": "pld_slam_cli.run:run_command",
+    "demo": "pld_slam_cli.demo:demo_command",
+    "synth": "pld_slam_cli.synth:synth_command",
+    "eval": "pld_slam_cli.evaluate:eval_command",
+    "config": "pld_slam_cli.config:config_command",
+    "places": "pld_slam_cli.places:places_command",
+    "vocabulary": "pld_slam_cli.vocabulary:vocabulary_command",
+    "ablate": "pld_slam_cli.ablate:ablate_command",
+    "regress": "pld_slam_cli.regress:regress_command",
+}
+"""Each command's name and where it is defined (``module:attribute``), imported on use."""
+
 
 class _ReportingGroup(click.Group):
-    """A click group that reports library errors as one line (see module docstring)."""
+    """A click group of lazily imported commands that reports errors as one line (see module docstring)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(_COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in _COMMANDS:
+            return None
+        module, attribute = _COMMANDS[name].split(":")
+        return getattr(importlib.import_module(module), attribute)
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except PldSlamError as error:
-            if ctx.obj and ctx.obj.get("verbose"):
-                raise
-            click.echo(f"error: {error}", err=True)
-            ctx.exit(EXIT_USER_ERROR)
-        except KeyboardInterrupt:
-            click.echo("interrupted", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
+            _report(ctx, f"error: {error}", EXIT_USER_ERROR)
+        except KeyboardInterrupt as interrupt:
+            _report(ctx, " ".join(filter(None, ("interrupted", str(interrupt)))), EXIT_INTERRUPTED)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
         except Exception as error:  # a bug: keep the one-line promise, point at --verbose
-            if ctx.obj and ctx.obj.get("verbose"):
-                raise
-            click.echo(
-                f"internal error: {type(error).__name__}: {error} (run with --verbose for the traceback)",
-                err=True,
-            )
-            ctx.exit(EXIT_BUG)
+            _report(ctx, f"internal error: {type(error).__name__}: {error} (run with --verbose for the traceback)",
+                    EXIT_BUG)
+
+
+def _report(ctx: click.Context, line: str, exit_code: int) -> None:
+    """Print ``line`` on stderr (after the traceback of the exception being handled with ``--verbose``) and exit."""
+    if ctx.obj and ctx.obj.get("verbose"):
+        traceback.print_exc(file=sys.stderr)
+    click.echo(line, err=True)
+    ctx.exit(exit_code)
 
 
 @click.group(cls=_ReportingGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -59,17 +79,6 @@ class _ReportingGroup(click.Group):
 def cli(ctx: click.Context, verbose: bool) -> None:
     """PLD-SLAM: stereo point-line SLAM for dynamic scenes."""
     ctx.ensure_object(dict)["verbose"] = verbose
-
-
-cli.add_command(run_command)
-cli.add_command(demo_command)
-cli.add_command(synth_command)
-cli.add_command(eval_command)
-cli.add_command(config_command)
-cli.add_command(places_command)
-cli.add_command(vocabulary_command)
-cli.add_command(ablate_command)
-cli.add_command(regress_command)
 
 
 def main() -> None:

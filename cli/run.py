@@ -19,23 +19,51 @@ from pld_slam.run_config import load_run_config
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam_cli.config import config_files_option, set_option
+from pld_slam_cli.evaluate import coverage_note
+
+SKIPPED_FRAMES_SHOWN = 3
+"""How many skipped frames the run table names; summary.json lists them all."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run after its files were written; the message says how far it got and what it wrote."""
+
+
+def skipped_frame_rows(skipped: list[dict]) -> list[tuple[str, str]]:
+    """Table rows of a summary's ``skipped_frames``: their count, then the first few reasons (each names its file)."""
+    if not skipped:
+        return []
+    rows = [("skipped frames", str(len(skipped)))]
+    rows += [("", f"frame {frame['index']}: {frame['reason']}") for frame in skipped[:SKIPPED_FRAMES_SHOWN]]
+    if len(skipped) > SKIPPED_FRAMES_SHOWN:
+        rows.append(("", f"and {len(skipped) - SKIPPED_FRAMES_SHOWN} more in summary.json (skipped_frames)"))
+    return rows
 
 
 def format_run_table(summary: dict) -> str:
-    """Frames, failures, accuracy and per-stage speed of a run summary as aligned text."""
+    """Frames, failures, accuracy and per-stage speed of a run summary as aligned text.
+
+    Rows without a label continue the row above: the skipped frames named
+    (`skipped_frame_rows`), and the frames the accuracy covers when not all
+    (`pld_slam_cli.evaluate.coverage_note`).
+    """
 
     def number(value, fmt: str, unit: str) -> str:
         return "n/a" if value is None else f"{fmt.format(value)} {unit}".rstrip()
 
+    coverage = coverage_note(summary["n_matched"], summary["frames"])
     rows = [
         ("sequence", summary["sequence"]),
         ("frames", f"{summary['frames']} of {summary['frames_in_sequence']}"
                    + ("" if summary["completed"] else f" (stopped: {summary['stop_reason']})")),
         ("tracking failures", str(len(summary["tracking_failures"]))),
+        *skipped_frame_rows(summary["skipped_frames"]),
         ("ATE RMSE", number(summary["ate_rmse_m"], "{:.4f}", "m")),
         ("RPE trans / rot (1 frame)", number(summary["rpe_trans_rmse_m"], "{:.4f}", "m")
          + " / " + number(summary["rpe_rot_rmse_deg"], "{:.4f}", "deg")),
-        ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")),
+        *([("", coverage)] if coverage else []),
+        ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")
+         + " (sequence time / wall time; above 1 is faster than real time)"),
         ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
     ]
     mapping = summary["mapping"]
@@ -94,7 +122,8 @@ def run_and_write(
     frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
     after every frame is lost. Each frame's tracked pose is appended to that file as
     the run goes, so a run killed hard keeps its poses so far; the file is deleted once
-    the final trajectory files are written.
+    the final trajectory files are written. Ctrl-C during the frames raises
+    `RunInterrupted` once the files are written, naming them (`interrupted_message`).
     """
     sequence = open_sequence(sequence_dir)
     run_config = load_run_config(sequence, config_paths, overrides)
@@ -108,14 +137,26 @@ def run_and_write(
     def progress(indices):
         return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
 
+    interrupted = False
     try:
         system.run(max_frames=max_frames, progress=progress)
+    except KeyboardInterrupt:
+        interrupted = True  # raised again below, once the files are written
     finally:
         partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
-        write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth, title=sequence.name)
+        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
+                                    title=sequence.name)
         partial.discard()
+    if interrupted:
+        raise RunInterrupted(interrupted_message(summary, n_frames, out, written))
     return summary
+
+
+def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[Path]) -> str:
+    """How far an interrupted run got and which files it wrote where: ``after 5 of 12 frames; wrote ... in OUT/``."""
+    names = ", ".join(path.name for path in written)
+    return f"after {summary['frames']} of {n_frames} frames; wrote {names} in {out}/"
 
 
 @click.command("run")

@@ -15,7 +15,15 @@ keyframes after the frame was tracked (ORB-SLAM2 does the same). A culled keyfra
 to its spanning-tree parent (`pld_slam.mapping.map.Map.keyframe_T_w_c`).
 
 `System` keeps a `FrameRecord` per frame, so a run stopped early (Ctrl-C, an error) still
-has the trajectory of every frame it processed.
+has the trajectory of every frame it processed, and row ``i`` of the trajectory is frame ``i``.
+
+The first usable frame. The world is the camera of the first frame whose images can be
+read and have the features to be tracked against (the tracker's rule for a reference
+frame), not of frame 0: a blank or unreadable frame 0 cannot define it. The frames before
+that one have no pose of their own (nothing was tracked yet, there is no motion to
+extrapolate), so each gets the first usable frame's pose, the identity, and is recorded
+as a failure (`TrackingStatus.LOST`, ``skipped_reason`` saying why); their rows are kept so
+that rows stay aligned with frames.
 """
 
 import time
@@ -148,19 +156,25 @@ class System:
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing)
         self._observer = observer
         self._record_observer = record_observer
+        self._started = False  # whether the first usable frame (module docstring) was tracked
 
     def process_frame(self, index: int) -> FrameRecord:
         """Load, extract and track frame ``index``; an unreadable frame is skipped, not fatal.
 
-        The dataset raises `DatasetError` for an unreadable image when it is read; the
-        run goes on (the motion model gives that frame's pose, flagged in its record),
-        because one corrupt file in a 4,541-frame sequence should not cost the rest.
+        The dataset raises `DatasetError` for an unreadable image (or one of another size
+        than the calibration's) when it is read; the run goes on (the motion model gives
+        that frame's pose, flagged in its record), because one corrupt file in a
+        4,541-frame sequence should not cost the rest. Before the first usable frame
+        (module docstring), an unreadable frame or one with too few features gets the
+        identity instead (`_before_first_usable`).
         """
         start = time.perf_counter()
         timestamp = float(self.sequence.timestamps[index])
         try:
             frame = self.sequence[index]
         except DatasetError as error:
+            if not self._started:
+                return self._before_first_usable(index, timestamp, str(error), start)
             tracked = self.tracker.skip()
             reference = self.tracker.reference_keyframe_id
             record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts,
@@ -174,6 +188,12 @@ class System:
             frame.left, frame.right, self.sequence.camera, self.config.points, self.config.lines, ggs
         )
         extracted = time.perf_counter()
+        if not self._started:
+            if not self.tracker.can_be_reference(features):
+                reason = (f"{self.sequence.left_paths[index]}: too few features to start the trajectory on "
+                          f"({len(features.points)} stereo points, {len(features.lines)} lines)")
+                return self._before_first_usable(index, timestamp, reason, start)
+            self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask)
         stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
@@ -192,6 +212,17 @@ class System:
         self._add(record, start)
         if self._observer is not None:
             self._observer(frame, tracked)
+        return record
+
+    def _before_first_usable(self, index: int, timestamp: float, reason: str, start: float) -> FrameRecord:
+        """The record of a frame before the first usable one: the identity, LOST, ``reason`` as why it was skipped.
+
+        The tracker never sees the frame, so the next frame is tracked as the first
+        (the world); the record keeps the frame's row (module docstring).
+        """
+        record = FrameRecord(index, timestamp, np.eye(4), TrackingStatus.LOST, TrackingCounts(),
+                             {"total": _ms_since(start)}, skipped_reason=reason)
+        self._add(record, start)
         return record
 
     def _map_frame(

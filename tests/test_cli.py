@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -17,10 +18,12 @@ from conftest import require
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
-from pld_slam.io.trajectory import read_kitti, read_tum, write_kitti, write_tum
+from pld_slam.io.trajectory import read_kitti, read_trajectory, read_tum, write_euroc, write_kitti, write_tum
 from pld_slam.synth.writer import write_sequence
+from pld_slam.system import System
 from pld_slam.trajectory import Trajectory
-from pld_slam_cli.main import EXIT_USER_ERROR, cli
+from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_USER_ERROR, cli
+from pld_slam_cli.run import skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
@@ -114,8 +117,9 @@ def test_library_errors_are_one_line_with_exit_code_2_and_verbose_shows_the_trac
     assert result.exit_code == EXIT_USER_ERROR
     assert result.output.startswith(f"error: {bad}") and result.output.count("\n") == 1
     verbose = CliRunner().invoke(cli, ["--verbose", "eval", str(bad), str(bad)])
-    assert verbose.exit_code != 0
-    assert verbose.exception is not None and "bad.txt" in str(verbose.exception)
+    assert verbose.exit_code == EXIT_USER_ERROR  # --verbose adds the traceback and changes nothing else
+    assert verbose.stderr.startswith("Traceback (most recent call last):")
+    assert verbose.stderr.endswith(result.output) and "TrajectoryError" in verbose.stderr
 
 
 def test_eval_against_kitti_raw_uses_its_oxts_ground_truth(tmp_path, data_dir):
@@ -193,6 +197,13 @@ def test_demo_generates_a_sequence_and_prints_accuracy_and_speed(tmp_path):
     assert "ATE RMSE" in result.output and "real-time factor" in result.output
     summary = json.loads((tmp_path / "demo" / "run" / "summary.json").read_text())
     assert summary["frames"] == 8 and summary["ate_rmse_m"] < 0.1
+    assert result.stderr == ""  # no progress bar when stderr is not a terminal, as for run
+
+
+def test_synth_draws_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path):
+    result = run("synth", tmp_path / "seq", "--frames", 2, "--size", "64x48")
+    assert result.exit_code == 0, result.output
+    assert result.stderr == ""
 
 
 def test_run_reports_dynamic_labels_and_saves_overlays(synthetic_sequence, tmp_path):
@@ -288,3 +299,97 @@ def pose_rows(path) -> int:
     if not path.exists():
         return 0
     return sum(1 for line in path.read_text().splitlines(keepends=True) if line.endswith("\n") and line[0] != "#")
+
+
+def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_quiet_stderr(
+        synthetic_sequence, tmp_path):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    truncated = sequence / "image_1" / "000002.png"
+    truncated.write_bytes(truncated.read_bytes()[:-40])  # libpng: "libpng error: Read Error"
+    for side in ("image_0", "image_1"):  # both images of frame 4 of another size than the calibration's
+        cv2.imwrite(str(sequence / side / "000004.png"), np.zeros((60, 80), dtype=np.uint8))
+    poses = (sequence / "poses.txt").read_text().splitlines()
+    (sequence / "poses.txt").write_text("\n".join(poses[:5]) + "\n")  # ground truth of 5 of the 6 frames
+    out = tmp_path / "run"
+    child = subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence), "--out", str(out)],
+                           capture_output=True, text=True, timeout=300)
+    assert child.returncode == 0, child.stderr
+    assert child.stderr == ""  # no library noise (libpng, OpenCV WARN), no progress bar off a terminal
+    table = child.stdout.splitlines()
+    blank = " " * 28
+    start = table.index(f"{'skipped frames':<28}2")
+    assert table[start + 1] == f"{blank}frame 2: {truncated}: cannot read image (not an image, or corrupt)"
+    assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
+                                "but the calibration is for 160x120")
+    assert f"{blank}evaluated on 5 of 6 frames" in table
+    assert any(re.fullmatch(r"real-time factor +[0-9.]+ \(sequence time / wall time; above 1 is faster than "
+                            r"real time\)", line) for line in table)
+    summary = json.loads((out / "summary.json").read_text())
+    assert [frame["index"] for frame in summary["skipped_frames"]] == [2, 4] and summary["n_matched"] == 5
+
+
+def test_the_run_table_names_the_first_three_skipped_frames_and_counts_the_rest():
+    skipped = [{"index": i, "reason": f"f{i}.png: cannot read image (empty file)"} for i in range(5)]
+    assert skipped_frame_rows(skipped) == [
+        ("skipped frames", "5"),
+        ("", "frame 0: f0.png: cannot read image (empty file)"),
+        ("", "frame 1: f1.png: cannot read image (empty file)"),
+        ("", "frame 2: f2.png: cannot read image (empty file)"),
+        ("", "and 2 more in summary.json (skipped_frames)"),
+    ]
+    assert skipped_frame_rows([]) == []
+
+
+def test_eval_says_on_how_many_of_the_estimated_frames_it_evaluated(synthetic_sequence, tmp_path):
+    truth = read_kitti(synthetic_sequence / "poses.txt")
+    write_tum(tmp_path / "gt.tum.txt", truth.head(4))
+    write_tum(tmp_path / "est.tum.txt", truth)
+    result = run("eval", tmp_path / "gt.tum.txt", tmp_path / "est.tum.txt")
+    assert result.exit_code == 0, result.output
+    assert f"{'':<26}evaluated on 4 of 6 frames" in result.stdout.splitlines()
+    whole = run("eval", tmp_path / "est.tum.txt", tmp_path / "est.tum.txt")
+    assert "evaluated on" not in whole.stdout
+
+
+def test_eval_warns_that_euroc_body_ground_truth_is_not_the_camera(tmp_path):
+    mav0 = tmp_path / "MH_01" / "mav0" / "state_groundtruth_estimate0"
+    mav0.mkdir(parents=True)
+    gt = mav0 / "data.csv"
+    rows = [f"{1403636580838555648 + i * 50_000_000},{0.1 * i},0,0,1,0,0,0,0,0,0,0,0,0,0,0,0" for i in range(5)]
+    gt.write_text("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], "
+                  "q_RS_z [], v_RS_R_x [m s^-1]\n" + "\n".join(rows) + "\n")
+    estimate = tmp_path / "est.euroc.csv"
+    write_euroc(estimate, read_trajectory(gt, "euroc"))
+    result = run("eval", gt, estimate)
+    assert result.exit_code == 0, result.output
+    assert result.stderr == (f"warning: {gt} is EuRoC's ground truth of the body (IMU) frame, not of the camera; "
+                             "pass the sequence folder as GT to compare in the rectified left camera\n")
+    assert run("eval", estimate, estimate).stderr == ""
+
+
+def test_ctrl_c_mid_run_names_the_files_written_and_where(synthetic_sequence, tmp_path, monkeypatch):
+    original = System.process_frame
+
+    def process_frame(self, index):
+        if index == 3:
+            raise KeyboardInterrupt
+        return original(self, index)
+
+    monkeypatch.setattr(System, "process_frame", process_frame)
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out)
+    assert result.exit_code == EXIT_INTERRUPTED
+    assert result.stderr == (f"interrupted after 3 of 6 frames; wrote trajectory.kitti.txt, trajectory.tum.txt, "
+                             f"summary.json, loops.csv, trajectory.png in {out}/\n")
+    assert len(read_kitti(out / "trajectory.kitti.txt")) == 3
+
+
+def test_ctrl_c_during_start_up_is_one_line_and_no_traceback(synthetic_sequence, tmp_path):
+    child = subprocess.Popen([sys.executable, "-m", "pld_slam_cli", "run", str(synthetic_sequence),
+                              "--out", str(tmp_path / "run")], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                             text=True)
+    time.sleep(1.0)  # the commands' imports take ~3 s
+    child.send_signal(signal.SIGINT)
+    _, stderr = child.communicate(timeout=300)
+    assert child.returncode == EXIT_INTERRUPTED, stderr
+    assert "Traceback" not in stderr and stderr.startswith("interrupted") and stderr.count("\n") == 1

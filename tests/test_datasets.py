@@ -13,6 +13,7 @@ import yaml
 from conftest import require
 
 from pld_slam.datasets import open_sequence
+from pld_slam.datasets.base import read_grey
 from pld_slam.datasets.kitti_raw import EARTH_RADIUS
 from pld_slam.errors import DatasetError, TrajectoryError
 from pld_slam.geometry.se3 import make_pose, rotation_angle
@@ -371,6 +372,38 @@ def test_kitti_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp_p
         sequence[1]
 
 
+@pytest.mark.parametrize("sides", [("image_0", "image_1"), ("image_0",), ("image_1",)])
+def test_an_image_of_another_size_than_the_calibration_raises_naming_the_file_that_differs(tmp_path, sides):
+    folder = make_kitti_odometry(tmp_path, n=3)
+    for side in sides:
+        write_images(folder / side, ["000001.png"], size=(2 * WIDTH, HEIGHT))
+    sequence = open_sequence(folder)
+    with pytest.raises(DatasetError) as raised:
+        sequence[1]
+    assert str(raised.value) == (
+        f"{folder / sides[0] / '000001.png'}: image is {2 * WIDTH}x{HEIGHT} "
+        f"but the calibration is for {WIDTH}x{HEIGHT}"
+    )
+    assert sequence[2].left.shape == (HEIGHT, WIDTH)
+
+
+@pytest.mark.parametrize(
+    ("damage", "problem"),
+    [("empty", "empty file"), ("missing", "No such file or directory"), ("truncated", "not an image, or corrupt")],
+)
+def test_an_unreadable_image_is_one_line_naming_it_and_nothing_on_stderr(tmp_path, capfd, damage, problem):
+    write_images(tmp_path, ["a.png"])
+    image = tmp_path / "a.png"
+    if damage == "missing":
+        image.unlink()
+    else:  # truncated: libpng prints "libpng error: ..." itself when it decodes this
+        image.write_bytes(b"" if damage == "empty" else image.read_bytes()[:-40])
+    with pytest.raises(DatasetError) as raised:
+        read_grey(image)
+    assert str(raised.value) == f"{image}: cannot read image ({problem})"
+    assert capfd.readouterr().err == ""
+
+
 # ---------------------------------------------------------------- KITTI raw, generated
 
 
@@ -580,7 +613,7 @@ def test_generic_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp
 
 def test_generic_image_size_other_than_calibrated_raises_when_read(tmp_path):
     sequence = open_sequence(make_generic(tmp_path, RAW_RIG, n=2, size=(WIDTH, HEIGHT)))
-    with pytest.raises(DatasetError, match="calib.yaml: calibrated for 320x240 images but got 32x24"):
+    with pytest.raises(DatasetError, match="left/0000.png: image is 32x24 but the calibration is for 320x240"):
         sequence[0]
 
 

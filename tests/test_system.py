@@ -11,6 +11,7 @@ import dataclasses
 import json
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 
@@ -378,3 +379,30 @@ def test_a_sequence_without_ground_truth_has_null_accuracy(folder, tmp_path, con
     assert len((tmp_path / "out" / TRAJECTORY_KITTI).read_text().splitlines()) == 3
     assert read_summary(tmp_path / "out")["ate_rmse_m"] is None
     assert (tmp_path / "out" / PLOT) in written
+
+
+@pytest.mark.parametrize("damage", ["unreadable", "blank"])
+def test_frames_before_the_first_usable_one_keep_their_rows_at_identity_and_are_the_failures(
+    folder, tmp_path, config, damage
+):
+    copy = copy_of(folder, tmp_path)
+    if damage == "unreadable":
+        (copy / "image_1" / "000000.png").write_bytes(b"not a PNG" * 10)
+    else:
+        for side in ("image_0", "image_1"):
+            cv2.imwrite(str(copy / side / "000000.png"), np.zeros((240, 320), dtype=np.uint8))
+    sequence = open_sequence(copy)
+    result = System(sequence, config).run()
+
+    assert [r.index for r in result.records] == list(range(N_FRAMES))
+    assert [r.status for r in result.records[:2]] == [TrackingStatus.LOST, TrackingStatus.FIRST]
+    assert "000000.png" in result.records[0].skipped_reason
+    trajectory = result.trajectory()
+    np.testing.assert_array_equal(trajectory.timestamps, sequence.timestamps)
+    np.testing.assert_array_equal(trajectory.poses[:2], np.stack([np.eye(4)] * 2))
+    summary = summarise_run(sequence, result, config)
+    assert summary["tracking_failures"] == [0]
+    assert [frame["index"] for frame in summary["skipped_frames"]] == [0]
+    assert summary["world_frame"] == 1
+    assert summary["n_matched"] == N_FRAMES - 1
+    assert summary["ate_rmse_m"] < 0.05  # measured 0.022 m; the identity placeholder counted made it 0.22 m

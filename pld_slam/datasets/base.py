@@ -6,7 +6,10 @@ with the first ground-truth pose at identity. Images are read only when a frame 
 for, so opening a 4,541-frame KITTI sequence costs a directory listing.
 """
 
+import os
+import sys
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -32,11 +35,58 @@ class StereoFrame:
 
 
 def read_grey(path: Path) -> np.ndarray:
-    """Read an image file as (H, W) uint8 grey, or raise `DatasetError` naming the file."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    """Read an image file as (H, W) uint8 grey, or raise `DatasetError` naming the file.
+
+    We read the bytes ourselves and decode them with ``cv2.imdecode`` under
+    `_native_stderr_discarded`, because ``cv2.imread`` and the decoders it calls print to
+    the process's stderr on a bad file (OpenCV's ``WARN`` line for a missing one, libpng's
+    ``libpng error: Read Error`` for a truncated one), noise around the one line that
+    names the file and the problem.
+    """
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as error:
+        raise DatasetError(f"{path}: cannot read image ({error.strerror or error})") from None
+    if data.size == 0:
+        raise DatasetError(f"{path}: cannot read image (empty file)")
+    with _native_stderr_discarded():
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
     if image is None:
-        raise DatasetError(f"{path}: cannot read image (missing, empty or not an image)")
+        raise DatasetError(f"{path}: cannot read image (not an image, or corrupt)")
     return image
+
+
+@contextmanager
+def _native_stderr_discarded() -> Iterator[None]:
+    """Send what native code writes to file descriptor 2 (stderr) to the null device meanwhile.
+
+    libpng reports a corrupt file on stderr itself, not through OpenCV's log, so neither
+    OpenCV's log level nor Python's ``sys.stderr`` reaches it; only the descriptor does.
+    Python's own ``sys.stderr`` is flushed first so that nothing written before is lost.
+    """
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as devnull:
+            os.dup2(devnull.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _check_calibrated_size(path: Path, image: np.ndarray, camera: StereoCamera) -> None:
+    """Raise `DatasetError` naming ``path`` when ``image`` is not of the calibration's size.
+
+    Images of another size would be tracked with intrinsics that do not describe them
+    (and a rectifier's pixel maps of another size), silently wrong; a raw image's size is
+    its rectified size (`pld_slam.datasets.rectify`), so one check serves every layout.
+    """
+    height, width = image.shape
+    if (width, height) != (camera.width, camera.height):
+        raise DatasetError(
+            f"{path}: image is {width}x{height} but the calibration is for {camera.width}x{camera.height}"
+        )
 
 
 @dataclass(frozen=True)
@@ -97,20 +147,25 @@ class StereoSequence:
         return len(self.left_paths)
 
     def __getitem__(self, index: int) -> StereoFrame:
-        """Read, and rectify where needed, frame ``index``; unreadable files raise here."""
+        """Read, and rectify where needed, frame ``index``.
+
+        An unreadable image, or one of another size than the calibration's
+        (`_check_calibrated_size`), raises `DatasetError` naming that file (the left one
+        when both are); a run skips such a frame (`pld_slam.system.System.process_frame`).
+        """
         if not -len(self) <= index < len(self):
             raise IndexError(f"frame {index} out of range for {len(self)} frames")
         index %= len(self)
-        left = read_grey(self.left_paths[index])
-        right = read_grey(self.right_paths[index])
-        if left.shape != right.shape:
-            raise DatasetError(
-                f"{self.right_paths[index]}: size {right.shape[::-1]} differs from the "
-                f"left image's {left.shape[::-1]}"
-            )
+        left, right = (self._read_calibrated(paths[index]) for paths in (self.left_paths, self.right_paths))
         if self.rectifier is not None:
             left, right = self.rectifier(left, right)
         return StereoFrame(index, float(self.timestamps[index]), left, right)
+
+    def _read_calibrated(self, path: Path) -> np.ndarray:
+        """The grey image of ``path`` (`read_grey`), checked to be of the calibration's size."""
+        image = read_grey(path)
+        _check_calibrated_size(path, image, self.camera)
+        return image
 
     def __iter__(self) -> Iterator[StereoFrame]:
         for index in range(len(self)):

@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 
 from pld_slam.datasets.calibration import stereo_camera_from_projections
-from pld_slam.errors import DatasetError
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
 
@@ -48,15 +47,12 @@ class StereoRectification:
     R_rect_raw : np.ndarray
         (3, 3) ``R1`` of ``stereoRectify``: maps a point of the raw left camera frame into
         the rectified left camera frame (same centre, rotated).
-    source : Path
-        The calibration file, named in errors.
     left_map, right_map : PixelMap
         Raw -> rectified pixel maps of each camera.
     """
 
     camera: StereoCamera
     R_rect_raw: np.ndarray
-    source: Path
     left_map: PixelMap
     right_map: PixelMap
 
@@ -66,13 +62,7 @@ class StereoRectification:
         return make_pose(self.R_rect_raw.T, np.zeros(3))
 
     def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rectify a raw (H, W) uint8 pair; a size other than the calibrated one raises."""
-        expected = (self.camera.height, self.camera.width)
-        if left.shape != expected:
-            raise DatasetError(
-                f"{self.source}: calibrated for {expected[1]}x{expected[0]} images but got "
-                f"{left.shape[1]}x{left.shape[0]}"
-            )
+        """Rectify a raw (H, W) uint8 pair of the calibrated size (`StereoSequence` checks it)."""
         return self.left_map.apply(left), self.right_map.apply(right)
 
 
@@ -130,7 +120,6 @@ def rectify_stereo(
     return StereoRectification(
         camera=camera,
         R_rect_raw=R1,
-        source=source,
         left_map=_pixel_map(K_left, distortion_left, R1, P1, image_size),
         right_map=_pixel_map(K_right, distortion_right, R2, P2, image_size),
     )

@@ -47,6 +47,30 @@ def real_time_factor(sequence: StereoSequence, result: RunResult) -> float | Non
     return len(result.records) * period / result.wall_seconds
 
 
+def world_frame(result: RunResult) -> int | None:
+    """The index of the first usable frame, whose camera is the run's world; None before one.
+
+    See `pld_slam.system`: the frames before it hold the identity as a placeholder.
+    """
+    return next((r.index for r in result.records if r.status is TrackingStatus.FIRST), None)
+
+
+def accuracy_from_world_frame(sequence: StereoSequence, result: RunResult) -> dict[str, float | int | None]:
+    """`accuracy` of the frames from the `world_frame` on: the rows before it are placeholders, not estimates.
+
+    Counting the placeholders would add the motion before the world frame as error. The
+    estimate's world (the world frame's camera) and the ground truth's (frame 0's) differ
+    then, which the SE(3) alignment of `evaluate` absorbs. ``n_matched`` says how many
+    frames were compared; every key is null before a usable frame.
+    """
+    first = world_frame(result)
+    if first is None:
+        return dict.fromkeys(_ACCURACY_KEYS)
+    trajectory = result.trajectory()
+    from_first = np.array([record.index >= first for record in result.records], dtype=bool)
+    return accuracy(sequence.groundtruth, Trajectory(trajectory.timestamps[from_first], trajectory.poses[from_first]))
+
+
 def accuracy(groundtruth: Trajectory | None, estimate: Trajectory) -> dict[str, float | int | None]:
     """The `EvalResult` keys of the estimate against the ground truth, null where not computable."""
     if groundtruth is None:
@@ -220,7 +244,8 @@ def summarise_run(
         "timing_ms": stage_timing(result),
         "wall_seconds": result.wall_seconds,
         "real_time_factor": real_time_factor(sequence, result),
-        **accuracy(sequence.groundtruth, result.trajectory()),
+        "world_frame": world_frame(result),
+        **accuracy_from_world_frame(sequence, result),
         "features_median": {
             "stereo_points": _median_or_none([r.n_points for r in records]),
             "stereo_lines": _median_or_none([r.n_lines for r in records]),

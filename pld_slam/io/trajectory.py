@@ -289,6 +289,27 @@ def detect_format(path) -> str:
     )
 
 
+EUROC_BODY_COLUMN = "p_RS_R_x"
+"""The header name of the first position column of EuRoC's ``state_groundtruth_estimate0/data.csv``:
+the position of the body (R: the IMU, S: the sensor frame) in the world."""
+
+
+def is_euroc_body_groundtruth(path) -> bool:
+    """Whether the file's first line is the header of EuRoC's body-frame ground truth (`EUROC_BODY_COLUMN`).
+
+    That file reads as an ``euroc`` trajectory, but of the IMU, not of a camera: compared
+    with a camera trajectory it differs by the camera-IMU lever arm and rotation, which
+    no SE(3) alignment of the whole trajectory removes. A file that cannot be read is not
+    one (reading it reports why).
+    """
+    try:
+        with Path(path).open(encoding="utf-8-sig") as file:
+            header = file.readline()
+    except (OSError, UnicodeDecodeError):
+        return False
+    return header.startswith("#") and EUROC_BODY_COLUMN in header
+
+
 def _check_format(fmt: str, path) -> None:
     if fmt not in FORMATS:
         raise TrajectoryError(

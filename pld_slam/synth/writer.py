@@ -131,7 +131,8 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
     seed : int
         Fixes the scene, motion and noise: the same arguments write the same bytes.
     progress : bool
-        Show a progress bar.
+        Show a progress bar when stderr is a terminal (tqdm's ``disable=None``), as
+        ``pld-slam run`` does: redrawn bars in a log file are noise.
 
     Raises
     ------
@@ -146,7 +147,8 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
     fractions = np.empty(world.n_frames)
     with ThreadPoolExecutor(max_workers=1) as writer:
         pending = []
-        for index in tqdm(range(world.n_frames), disable=not progress, desc=f"synth {scenario}", unit="pair"):
+        frames = tqdm(range(world.n_frames), disable=None if progress else True, desc=f"synth {scenario}", unit="pair")
+        for index in frames:
             frame = world.render_frame(index)
             fractions[index] = frame.dynamic_mask.mean()
             name = f"{index:06d}.png"

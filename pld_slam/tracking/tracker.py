@@ -414,7 +414,7 @@ class Tracker:
         self._reference_age += 1
         if self._reference_age == 1:
             self._reference_inliers = inliers
-        renew = renew or (self._reference_is_worn(inliers) if tracked else self._can_be_reference(features))
+        renew = renew or (self._reference_is_worn(inliers) if tracked else self.can_be_reference(features))
         if renew:
             found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
             self._set_reference(features, T_w_c, found, landmarks)
@@ -441,7 +441,7 @@ class Tracker:
         landmarks its features observe (none by default): frames matched to it inherit them.
 
         After a failure the reference is the failed frame itself (at its motion-model
-        pose) if it has features enough to be tracked against (`_can_be_reference`):
+        pose) if it has features enough to be tracked against (`can_be_reference`):
         tracking goes on from the newest features, which is how it recovers from a wrong
         prediction. A frame without them (blank, blinded) keeps the old reference.
         """
@@ -454,7 +454,7 @@ class Tracker:
             self._seen_dynamic_points[dynamic.points] = True
             self._seen_dynamic_lines[dynamic.lines] = True
 
-    def _can_be_reference(self, features: StereoFeatures) -> bool:
+    def can_be_reference(self, features: StereoFeatures) -> bool:
         """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
         return len(features.points) + len(features.lines) >= 2 * self._config.tracking.min_inliers
 
