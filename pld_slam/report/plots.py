@@ -13,6 +13,10 @@ from pld_slam.eval.plots import FIGURE_SIZE_IN, aligned_onto, finish_top_view, s
 from pld_slam.report.tables import PaperTable
 from pld_slam.trajectory import Trajectory
 
+LOG_SCALE_SPAN = 30.0
+"""The bar chart's ATE axis turns logarithmic when the largest value exceeds the smallest this
+many times: millimetre EuRoC bars beside decimetre KITTI ones are otherwise invisible."""
+
 
 def plot_variant_trajectories(path_png, groundtruth: Trajectory | None, estimates: Mapping[str, Trajectory],
                               title: str) -> None:
@@ -57,6 +61,10 @@ def plot_ate_bars(path_png, table: PaperTable) -> None:
         heights = values[variant].to_numpy(dtype=float)
         axes.bar(positions + (n - (len(variants) - 1) / 2) * width, np.nan_to_num(heights), width, label=variant)
     axes.set_xticks(positions, sequences, rotation=30, ha="right")
+    shown = values.to_numpy(dtype=float)
+    shown = shown[np.isfinite(shown) & (shown > 0)]
+    if len(shown) and shown.max() > LOG_SCALE_SPAN * shown.min():
+        axes.set_yscale("log")
     axes.set_ylabel("ATE RMSE [m]")
     axes.set_title("Translation ATE per variant (missing cells: no bar)")
     axes.grid(True, axis="y", alpha=0.3)
