@@ -48,18 +48,15 @@ uint8 without widening, took 7.7 ms and 177 ms; ``cv2.absdiff`` + ``cv2.reduce``
 for 1,000). The distances are the same to the last bit: the per-cell sums are exact
 integers either way, and the mean over cells is the same float64 operation. `GgsDatabase`
 keeps the keyframes stacked, so that a query does not first copy them (``np.stack`` of
-1,000 descriptors: 0.7 ms). The first call of the process compiles the kernel (1 s).
-Numba's on-disk cache (``cache=True``, 0.4 s) is not used: it writes next to the source,
-into the installed package, which may be read-only, and which a reinstall then leaves
-behind as a folder without ``__init__.py`` that shadows the new install (a fresh
-``pip install .`` then ``pip install -e .`` could no longer import ``pld_slam``).
+1,000 descriptors: 0.7 ms). Compiling the kernel takes 1 s, once per machine: it is
+cached in a user cache folder (`pld_slam.jit`).
 """
 
 import cv2
-import numba
 import numpy as np
 
 from pld_slam.config import GgsConfig
+from pld_slam.jit import kernel
 
 HISTOGRAM_QUANTA = 400
 """A stored histogram bin counts in 1 / 400 of its cell (uint8, saturating at 255)."""
@@ -193,7 +190,7 @@ class GgsDatabase:
         self._buffer, self._buffer_ids = buffer, buffer_ids
 
 
-@numba.njit(nogil=True)
+@kernel
 def _best_pairing_cell_l1(query: np.ndarray, database: np.ndarray) -> np.ndarray:
     """Per cell, the least L1 distance over the four pairings: (N, C) uint16.
 
@@ -220,7 +217,7 @@ def _best_pairing_cell_l1(query: np.ndarray, database: np.ndarray) -> np.ndarray
     return best
 
 
-@numba.njit(nogil=True)
+@kernel
 def _absolute_difference(a: np.uint8, b: np.uint8) -> np.uint8:
     """``|a - b|`` of two uint8, in uint8."""
     return np.uint8(max(a, b) - min(a, b))

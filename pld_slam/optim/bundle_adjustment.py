@@ -61,13 +61,13 @@ and `BundleResult.inliers` tells the caller which to drop from the map.
 import dataclasses
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, se3_left_jacobian
+from pld_slam.jit import kernel
 from pld_slam.optim.observations import (
     LineObservations,
     ObservationMasks,
@@ -518,7 +518,7 @@ nonlinear, as soon as the poses moved, and the trust region, measured in whitene
 collapsed: the robust round stopped with the poses 5 cm off instead of 7 mm."""
 
 
-@numba.njit(nogil=True)
+@kernel
 def _fill_jacobian_values(jac_pose, jac_landmark, row_free_pose, pose_blocks, row_world_point, point_whitening, values):
     """The CSR values (nnz,) of the Jacobian w.r.t. ``y``, row by row: the pose entries ``jac_pose[r] @
     pose_blocks[k]`` (6) where the row's pose is free (``row_free_pose`` (R,) ``k >= 0``), then
