@@ -10,11 +10,14 @@ from pld_slam.datasets import StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.run_output import (
+    DEFAULT_FORMATS,
     TRAJECTORY_PARTIAL,
     PartialTrajectory,
     create_output_folder,
+    prepare_output_folder,
     write_run_outputs,
 )
+from pld_slam.io.trajectory import FORMATS
 from pld_slam.run_config import load_run_config
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackedFrame
@@ -109,15 +112,26 @@ def overlay_writer(folder: Path, sequence: StereoSequence):
     return write
 
 
+def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tuple[str, ...]:
+    """``--formats``: comma-separated names of `FORMATS`, in the order given, repeats dropped."""
+    names = tuple(dict.fromkeys(name.strip() for name in value.split(",") if name.strip()))
+    unknown = [name for name in names if name not in FORMATS]
+    if unknown or not names:
+        raise click.BadParameter(f"{value!r}: expected one or more of {','.join(FORMATS)}, separated by commas")
+    return names
+
+
 def run_and_write(
-    sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None, save_dynamic: Path | None = None
+    sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None, save_dynamic: Path | None = None,
+    formats: tuple[str, ...] = DEFAULT_FORMATS,
 ) -> dict:
     """Run the pipeline and write its files; on Ctrl-C or an error the files still get written.
 
     The configuration is `load_run_config`'s: defaults, the dataset family's file, then
-    ``config_paths`` and ``overrides``.
+    ``config_paths`` and ``overrides``. ``formats`` are the trajectory files' formats.
 
-    The output folder is created and written to (``trajectory.partial.tum.txt``, see
+    The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
+    so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
     `PartialTrajectory`) after the input and config are checked and before the first
     frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
     after every frame is lost. Each frame's tracked pose is appended to that file as
@@ -131,6 +145,7 @@ def run_and_write(
     partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
     system = System(sequence, run_config.config, observer,
                     record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
+    prepare_output_folder(out)
     partial.start()
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
@@ -146,7 +161,7 @@ def run_and_write(
         partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
         written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name)
+                                    title=sequence.name, formats=formats)
         partial.discard()
     if interrupted:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written))
@@ -166,23 +181,27 @@ def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[P
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder [default: runs/<sequence name>].")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Process only the first N frames.")
+@click.option("--formats", default=",".join(DEFAULT_FORMATS), show_default=True, callback=parse_formats,
+              help=f"Trajectory files to write, separated by commas: {','.join(FORMATS)}.")
 @click.option("--json", "as_json", is_flag=True, help="Print summary.json instead of a table.")
 @click.option("--save-dynamic", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each frame's features, coloured static (green) / dynamic (red), as PNGs here.")
 def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, max_frames: int | None,
-                as_json: bool, save_dynamic: Path | None) -> None:
+                formats: tuple[str, ...], as_json: bool, save_dynamic: Path | None) -> None:
     """Run PLD-SLAM on the stereo sequence in SEQUENCE_DIR (KITTI, KITTI raw, EuRoC or generic).
 
     The dataset family's config (kitti.yaml, euroc.yaml or synthetic.yaml, from the
     detected layout) is applied first, then --config files, then --set.
 
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
-    first camera), summary.json (frames, failures, timing, real-time factor, ATE/RPE
-    when the sequence has ground truth, the config and its sources) and trajectory.png.
+    first camera; --formats adds trajectory.euroc.csv or leaves one out), summary.json
+    (frames, failures, timing, real-time factor, ATE/RPE when the sequence has ground
+    truth, the config and its sources), loops.csv and trajectory.png.
     Ctrl-C or an error mid-run still writes the trajectory so far; while the run goes,
     trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run is
-    killed, deleted once the final files are written).
+    killed, deleted once the final files are written). The files of an earlier run in
+    the output folder are deleted first; other files there are kept.
     """
     out = out if out is not None else Path("runs") / open_sequence(sequence_dir).name
-    summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic)
+    summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic, formats)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")

@@ -131,10 +131,10 @@ def test_a_failing_cell_is_recorded_with_its_reason_and_the_others_go_on(tiny, t
     assert not is_finished(tmp_path, cells[0])  # failed cells run again next time
 
 
-def test_a_cell_over_its_time_limit_fails_saying_so_and_keeps_what_it_wrote(tiny, tmp_path):
+def test_a_cell_over_its_time_limit_fails_saying_so(tiny, tmp_path):
     (spec,) = plan_cells([open_sequence(tiny)], Suite("s", "", (Variant("v", ()),)))
-    outcome = execute_cell(spec, timeout=3.5)
-    assert outcome.status == "failed" and outcome.reason == "time limit of 3.5 s reached"
+    outcome = execute_cell(spec, timeout=0.3)  # no run of 8 frames, imports included, ends in 0.3 s
+    assert outcome.status == "failed" and outcome.reason == "time limit of 0.3 s reached"
 
 
 def test_ablate_killed_half_way_and_started_again_redoes_no_finished_cell(tiny, tmp_path):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 from click.testing import CliRunner
-from conftest import require
+from conftest import REPO_ROOT, require
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
@@ -22,6 +22,7 @@ from pld_slam.io.trajectory import read_kitti, read_trajectory, read_tum, write_
 from pld_slam.synth.writer import write_sequence
 from pld_slam.system import System
 from pld_slam.trajectory import Trajectory
+from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_USER_ERROR, cli
 from pld_slam_cli.run import skipped_frame_rows
 
@@ -393,3 +394,40 @@ def test_ctrl_c_during_start_up_is_one_line_and_no_traceback(synthetic_sequence,
     _, stderr = child.communicate(timeout=300)
     assert child.returncode == EXIT_INTERRUPTED, stderr
     assert "Traceback" not in stderr and stderr.startswith("interrupted") and stderr.count("\n") == 1
+
+
+def test_run_writes_the_euroc_format_when_asked_and_rejects_unknown_formats(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 3, "--formats", "kitti,tum,euroc")
+    assert result.exit_code == 0, result.output
+    euroc = read_trajectory(out / "trajectory.euroc.csv", "euroc")
+    np.testing.assert_allclose(euroc.poses, read_tum(out / "trajectory.tum.txt").poses, atol=1e-6)
+    result = run("run", synthetic_sequence, "--out", tmp_path / "bad", "--formats", "kitti,ply")
+    assert result.exit_code == EXIT_USER_ERROR and "--formats" in result.output
+    assert not (tmp_path / "bad").exists()
+
+
+def test_a_run_deletes_the_files_of_an_earlier_run_in_its_folder_but_no_other_file(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    first = run("run", synthetic_sequence, "--out", out, "--max-frames", 3, "--formats", "kitti,tum,euroc")
+    assert first.exit_code == 0, first.output
+    assert (out / "trajectory.png").exists() and (out / "trajectory.euroc.csv").exists()
+    (out / "notes.txt").write_text("mine")
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 1)
+    assert result.exit_code == 0, result.output
+    assert sorted(path.name for path in out.iterdir()) == [
+        "loops.csv", "notes.txt", "summary.json", "trajectory.kitti.txt", "trajectory.tum.txt"]
+
+
+def test_demo_writes_under_runs_which_git_ignores_and_says_where(tmp_path, monkeypatch):
+    assert DEMO_FOLDER.parts[0] == "runs"
+    assert "/runs/" in (REPO_ROOT / ".gitignore").read_text().splitlines()
+    (out_option,) = [param for param in demo_command.params if param.name == "out"]
+    assert out_option.default == DEMO_FOLDER
+    monkeypatch.chdir(tmp_path)
+    result = run("demo", "--frames", 2)
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith(f"writing the sequence into {DEMO_FOLDER / 'sequence'}/ and the run into "
+                                    f"{DEMO_FOLDER / 'run'}/\n")
+    assert (tmp_path / DEMO_FOLDER / "run" / "summary.json").exists()
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["runs"]

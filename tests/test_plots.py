@@ -1,4 +1,4 @@
-"""PNG plots: written off-screen, the expected size, and with the curves drawn."""
+"""PNG plots: written off-screen, the expected size, with the curves drawn, and labelled truthfully."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,13 @@ from matplotlib.image import imread
 from trajectories import WORLD_CHANGE, drive
 
 from pld_slam.errors import TrajectoryError
-from pld_slam.eval.plots import plot_error_over_time, plot_trajectory_top_view
+from pld_slam.eval import evaluate
+from pld_slam.eval.plots import (
+    error_over_time_figure,
+    plot_error_over_time,
+    plot_trajectory_top_view,
+    top_view_figure,
+)
 from pld_slam.trajectory import Trajectory
 
 ESTIMATE_BLUE = np.array([0.0, 0.0, 1.0])  # the "b-" line
@@ -48,3 +54,48 @@ def test_plots_refuse_unmatched_trajectories(tmp_path):
     with pytest.raises(TrajectoryError, match="no matching timestamps"):
         plot_trajectory_top_view(tmp_path / "top.png", groundtruth, later)
     assert not (tmp_path / "top.png").exists()
+
+
+def line_labelled(axes, label: str):
+    """The one line of ``axes`` whose legend entry is ``label``."""
+    (line,) = [line for line in axes.get_lines() if line.get_label() == label]
+    return line
+
+
+def test_top_view_says_the_estimate_is_aligned_and_gives_the_ate_in_the_title():
+    groundtruth = drive()
+    estimate = noisy_estimate(groundtruth)
+    axes = top_view_figure(groundtruth, estimate, title="seq").axes[0]
+    line_labelled(axes, "estimate (SE(3)-aligned)")
+    ate = evaluate(groundtruth, estimate).ate_rmse_m
+    assert axes.get_title() == f"seq\nATE RMSE {ate:.3f} m (SE(3)-aligned)"
+    sim3 = top_view_figure(groundtruth, estimate, title="seq", align="sim3").axes[0]
+    assert sim3.get_title().endswith("(Sim(3)-aligned)")
+
+
+def test_top_view_draws_the_ground_truth_over_the_estimate_and_starts_at_its_start():
+    groundtruth = drive()
+    axes = top_view_figure(groundtruth, noisy_estimate(groundtruth)).axes[0]
+    truth, estimate = line_labelled(axes, "ground truth"), line_labelled(axes, "estimate (SE(3)-aligned)")
+    assert truth.get_zorder() > estimate.get_zorder()
+    assert truth.get_linewidth() > estimate.get_linewidth()
+    start = line_labelled(axes, "start")
+    assert start.get_xydata()[0] == pytest.approx(groundtruth.positions[0, [0, 2]])
+
+
+def test_top_view_without_ground_truth_starts_at_the_estimate_and_claims_no_alignment():
+    estimate = drive()
+    axes = top_view_figure(None, estimate, title="estimate only").axes[0]
+    assert axes.get_title() == "estimate only"
+    assert line_labelled(axes, "start").get_xydata()[0] == pytest.approx(estimate.positions[0, [0, 2]])
+    line_labelled(axes, "estimate")
+
+
+def test_error_over_time_labels_rows_as_rows_and_times_as_seconds():
+    groundtruth = drive()
+    estimate = noisy_estimate(groundtruth)
+    by_row = error_over_time_figure(groundtruth, estimate, by_index=True).axes[0]
+    assert by_row.get_xlabel() == "pose (row of the file)"
+    assert by_row.get_lines()[0].get_xdata()[-1] == len(estimate) - 1
+    by_time = error_over_time_figure(groundtruth, estimate).axes[0]
+    assert by_time.get_xlabel() == "time [s]"

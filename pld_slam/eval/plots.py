@@ -1,7 +1,9 @@
 """PNG plots of a trajectory against its ground truth, drawn off-screen (Agg).
 
 Figures are built with ``matplotlib.figure.Figure`` rather than pyplot, so plotting never
-needs a display and never touches the global pyplot state of the caller.
+needs a display and never touches the global pyplot state of the caller. Each plot has a
+``*_figure`` function returning the unsaved `Figure` (what the tests inspect) and a
+``plot_*`` function writing it as a PNG.
 """
 
 from pathlib import Path
@@ -14,6 +16,10 @@ from pld_slam.trajectory import Trajectory
 
 FIGURE_SIZE_IN = (6.4, 4.8)
 DPI = 100
+ALIGNMENT_NAMES = {"se3": "SE(3)-aligned", "sim3": "Sim(3)-aligned", "none": "not aligned"}
+"""How the estimate's legend entry and the title name each ``align`` of `pld_slam.eval.metrics`."""
+GROUND_TRUTH_ZORDER = 3
+"""Above the estimate (matplotlib's lines default to 2), so an estimate on top of the truth does not hide it."""
 
 
 def save_figure(figure: Figure, path_png) -> None:
@@ -32,30 +38,69 @@ def plot_trajectory_top_view(
     max_diff: float = 0.01,
     loop_edges: np.ndarray | None = None,
 ) -> None:
-    """Write the x-z plane (seen from above) of the estimate and ground truth as a PNG.
+    """Write `top_view_figure` (same parameters) as a PNG at ``path_png``."""
+    save_figure(top_view_figure(groundtruth, estimate, title, align, by_index, max_diff, loop_edges), path_png)
+
+
+def top_view_figure(
+    groundtruth: Trajectory | None,
+    estimate: Trajectory,
+    title: str = "Trajectory, top view",
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+    loop_edges: np.ndarray | None = None,
+) -> Figure:
+    """The x-z plane (seen from above) of the estimate and ground truth.
 
     In the camera convention of the world frame (world = first camera: x right, y down,
     z forward) the x-z plane is the ground plane, so this is the bird's-eye view with
-    forward pointing up the page. The whole estimate is moved by the same alignment as
-    the ATE (`fit_alignment` on the matched poses; ``align``, ``by_index`` and
-    ``max_diff`` as in `pld_slam.eval.metrics.evaluate`). Without ground truth the
-    estimate is drawn as it is. ``loop_edges`` (K, 2): timestamps [s] of the two ends of
-    each closed loop, drawn as red segments between the estimate's nearest poses.
+    forward pointing up the page.
+
+    Parameters
+    ----------
+    groundtruth : Trajectory or None
+        Drawn black, dashed and thicker, on top of the estimate (`GROUND_TRUTH_ZORDER`):
+        where the estimate follows it closely, the truth stays visible through the
+        dashes. The start marker is on its first pose. Without it the estimate is drawn
+        as it is, its start marked, and the title is ``title`` alone.
+    estimate : Trajectory
+        Moved as a whole by the alignment of the ATE (`fit_alignment` on the matched
+        poses); its legend entry says which (`ALIGNMENT_NAMES`).
+    title : str
+        The first title line; with ground truth a second line gives the ATE RMSE [m]
+        and the alignment, so a pasted figure carries its number.
+    align, by_index, max_diff
+        As in `pld_slam.eval.metrics.evaluate`.
+    loop_edges : (K, 2) array or None
+        Timestamps [s] of the two ends of each closed loop, drawn as red segments
+        between the aligned estimate's nearest poses.
     """
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
+    start_xz = estimate.positions[0, [0, 2]]
+    label = "estimate"
     if groundtruth is not None:
+        title = f"{title}\n{ate_title_line(groundtruth, estimate, align, by_index, max_diff)}"
         estimate = aligned_onto(groundtruth, estimate, align, by_index, max_diff)
         gt_xz = groundtruth.positions[:, [0, 2]]
-        axes.plot(gt_xz[:, 0], gt_xz[:, 1], "k--", label="ground truth")
+        axes.plot(gt_xz[:, 0], gt_xz[:, 1], "k--", linewidth=2.0, zorder=GROUND_TRUTH_ZORDER, label="ground truth")
+        start_xz = gt_xz[0]
+        label = f"estimate ({ALIGNMENT_NAMES[align]})"
     est_xz = estimate.positions[:, [0, 2]]
-    axes.plot(est_xz[:, 0], est_xz[:, 1], "b-", label="estimate")
-    axes.plot(est_xz[0, 0], est_xz[0, 1], "go", label="start")
+    axes.plot(est_xz[:, 0], est_xz[:, 1], "b-", label=label)
+    axes.plot(start_xz[0], start_xz[1], "go", zorder=GROUND_TRUTH_ZORDER + 1, label="start")
     for n, ends in enumerate(np.zeros((0, 2)) if loop_edges is None else loop_edges):
         rows = np.abs(estimate.timestamps[None, :] - np.asarray(ends)[:, None]).argmin(axis=1)
         axes.plot(est_xz[rows, 0], est_xz[rows, 1], "r-o", markersize=3, label="loop" if n == 0 else None)
     finish_top_view(axes, title)
-    save_figure(figure, path_png)
+    return figure
+
+
+def ate_title_line(groundtruth: Trajectory, estimate: Trajectory, align: str, by_index: bool, max_diff: float) -> str:
+    """``ATE RMSE 0.123 m (SE(3)-aligned)``: the RMSE of `ate_errors`, the ATE of ``pld-slam eval``."""
+    _, errors = ate_errors(groundtruth, estimate, align, by_index, max_diff)
+    return f"ATE RMSE {np.sqrt(np.mean(errors**2)):.3f} m ({ALIGNMENT_NAMES[align]})"
 
 
 def aligned_onto(
@@ -85,18 +130,36 @@ def plot_error_over_time(
     by_index: bool = False,
     max_diff: float = 0.01,
 ) -> None:
-    """Write the ATE position error of each matched pose against time as a PNG.
+    """Write `error_over_time_figure` (same parameters) as a PNG at ``path_png``."""
+    save_figure(error_over_time_figure(groundtruth, estimate, title, align, by_index, max_diff), path_png)
 
-    Time runs from the first matched estimate pose [s]; the errors are those of
-    `ate_errors` with the same ``align``, ``by_index`` and ``max_diff``.
+
+def error_over_time_figure(
+    groundtruth: Trajectory,
+    estimate: Trajectory,
+    title: str = "Absolute trajectory error",
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> Figure:
+    """The ATE position error of each matched pose (`ate_errors`, same parameters).
+
+    Poses paired by time are plotted against the time from the first matched estimate
+    pose [s]. Poses paired by row (``by_index``: two KITTI files, which carry no times)
+    are plotted against their row in the estimate file, and the axis says so: the
+    times such a file is read with are made up (0, 1, 2, ...) and are not seconds.
     """
     timestamps, errors = ate_errors(groundtruth, estimate, align, by_index, max_diff)
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
-    axes.plot(timestamps - timestamps[0], errors, "b-")
-    axes.set_xlabel("time [s]")
-    axes.set_ylabel("position error [m]")
+    if by_index:
+        axes.plot(np.arange(len(errors)), errors, "b-")
+        axes.set_xlabel("pose (row of the file)")
+    else:
+        axes.plot(timestamps - timestamps[0], errors, "b-")
+        axes.set_xlabel("time [s]")
+    axes.set_ylabel(f"position error [m] ({ALIGNMENT_NAMES[align]})")
     axes.set_ylim(bottom=0.0)
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
-    save_figure(figure, path_png)
+    return figure

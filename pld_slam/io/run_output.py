@@ -1,5 +1,10 @@
-"""The files of a run: trajectories (KITTI, TUM), summary.json, loops.csv and a trajectory plot,
-and the partial trajectory streamed while the run goes.
+"""The files of a run: trajectories (KITTI, TUM, EuRoC), summary.json, loops.csv and a trajectory
+plot, and the partial trajectory streamed while the run goes.
+
+An output folder holds one run's files only: `prepare_output_folder` deletes the files
+an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
+its first, so a run that writes fewer files (under 2 frames: no plot) or stops half way
+never sits beside the plot or loops of the run before.
 
 Every OSError on output becomes an `OutputError` naming the path, so that an output
 folder that cannot be written reaches the user as one line, like bad input, and not as
@@ -15,16 +20,23 @@ import pandas as pd
 
 from pld_slam.errors import OutputError
 from pld_slam.eval.plots import plot_trajectory_top_view
-from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_kitti, write_tum
+from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
 from pld_slam.trajectory import Trajectory
 
 TRAJECTORY_KITTI = "trajectory.kitti.txt"
 TRAJECTORY_TUM = "trajectory.tum.txt"
+TRAJECTORY_EUROC = "trajectory.euroc.csv"
+TRAJECTORY_FILES = {"kitti": TRAJECTORY_KITTI, "tum": TRAJECTORY_TUM, "euroc": TRAJECTORY_EUROC}
+"""The trajectory file of each format of `pld_slam.io.trajectory.FORMATS`."""
+DEFAULT_FORMATS = ("kitti", "tum")
+"""The trajectory formats a run writes unless asked (``pld-slam run --formats``)."""
 TRAJECTORY_PARTIAL = "trajectory.partial.tum.txt"
 SUMMARY = "summary.json"
 PLOT = "trajectory.png"
 LOOPS = "loops.csv"
+RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, PLOT, LOOPS)
+"""Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
 
 
 def output_error(path: Path, error: OSError) -> OutputError:
@@ -38,6 +50,20 @@ def create_output_folder(folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise output_error(folder, error) from None
+
+
+def prepare_output_folder(folder: Path) -> None:
+    """Create ``folder`` if needed and delete the `RUN_FILES` an earlier run left in it.
+
+    Other files and subfolders (yours, or an ablation cell's ``cell.json``) are kept.
+    `OutputError` when the folder cannot be created or a file not deleted.
+    """
+    create_output_folder(folder)
+    for name in RUN_FILES:
+        try:
+            (folder / name).unlink(missing_ok=True)
+        except OSError as error:
+            raise output_error(folder / name, error) from None
 
 
 class PartialTrajectory:
@@ -93,32 +119,39 @@ class PartialTrajectory:
 
 
 def write_run_outputs(
-    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str
+    out_dir: Path,
+    estimate: Trajectory,
+    summary: dict,
+    groundtruth: Trajectory | None,
+    title: str,
+    formats: tuple[str, ...] = DEFAULT_FORMATS,
 ) -> list[Path]:
     """Write the run's files into ``out_dir`` (created if needed); return their paths.
 
-    The trajectory files hold one row per processed frame (``T_w_c``, world = first
-    camera). ``loops.csv`` lists the loop candidates of the summary's ``loop`` section, one
-    row each (written when the run had a loop stage and a frame); the plot marks the closed loops and
-    is skipped for fewer than 2 frames. A file that cannot be written raises `OutputError`
+    The trajectory files, one per format of ``formats`` (named by `TRAJECTORY_FILES`),
+    hold one row per processed frame (``T_w_c``, world = first camera). ``loops.csv``
+    lists the loop candidates of the summary's ``loop`` section, one row each (written
+    when the run had a loop stage and a frame); the plot marks the closed loops and is
+    skipped for fewer than 2 frames. A file that cannot be written raises `OutputError`
     naming it.
     """
     create_output_folder(out_dir)
     try:
-        return _write_run_files(out_dir, estimate, summary, groundtruth, title)
+        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats)
     except OSError as error:
         raise output_error(out_dir, error) from None
 
 
 def _write_run_files(
-    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str
+    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
+    formats: tuple[str, ...],
 ) -> list[Path]:
     """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
     written = []
     if len(estimate) > 0:
-        write_kitti(out_dir / TRAJECTORY_KITTI, estimate)
-        write_tum(out_dir / TRAJECTORY_TUM, estimate)
-        written += [out_dir / TRAJECTORY_KITTI, out_dir / TRAJECTORY_TUM]
+        for fmt in formats:
+            write_trajectory(out_dir / TRAJECTORY_FILES[fmt], estimate, fmt)
+            written.append(out_dir / TRAJECTORY_FILES[fmt])
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     written.append(out_dir / SUMMARY)
     loop = summary.get("loop")
