@@ -24,3 +24,8 @@ class ConfigError(PldSlamError):
 
 class OutputError(PldSlamError):
     """An output folder or file cannot be created or written (the message says which and why)."""
+
+    @classmethod
+    def from_os_error(cls, path, error: OSError) -> "OutputError":
+        """The one-line error of ``error``, naming the file it names, else ``path``."""
+        return cls(f"{error.filename or path}: cannot write ({error.strerror or error})")

@@ -431,3 +431,11 @@ def test_demo_writes_under_runs_which_git_ignores_and_says_where(tmp_path, monke
                                     f"{DEMO_FOLDER / 'run'}/\n")
     assert (tmp_path / DEMO_FOLDER / "run" / "summary.json").exists()
     assert sorted(path.name for path in tmp_path.iterdir()) == ["runs"]
+
+
+def test_synth_into_a_folder_under_a_file_is_a_one_line_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    result = CliRunner().invoke(cli, ["synth", str(blocker / "seq"), "--frames", "2"])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines()[-1].startswith(f"error: {blocker}")

@@ -39,17 +39,12 @@ RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, PLOT, LOOP
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
 
 
-def output_error(path: Path, error: OSError) -> OutputError:
-    """The one-line `OutputError` of ``error``, naming the file it names, else ``path``."""
-    return OutputError(f"{error.filename or path}: cannot write ({error.strerror or error})")
-
-
 def create_output_folder(folder: Path) -> None:
     """Create ``folder`` and its parents if needed; `OutputError` when that fails (e.g. under a file)."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise output_error(folder, error) from None
+        raise OutputError.from_os_error(folder, error) from None
 
 
 def prepare_output_folder(folder: Path) -> None:
@@ -63,7 +58,7 @@ def prepare_output_folder(folder: Path) -> None:
         try:
             (folder / name).unlink(missing_ok=True)
         except OSError as error:
-            raise output_error(folder / name, error) from None
+            raise OutputError.from_os_error(folder / name, error) from None
 
 
 class PartialTrajectory:
@@ -91,14 +86,14 @@ class PartialTrajectory:
             self._file = self.path.open("w")
             self._write_line(TUM_HEADER)
         except OSError as error:
-            raise output_error(self.path, error) from None
+            raise OutputError.from_os_error(self.path, error) from None
 
     def append(self, timestamp: float, T_w_c: np.ndarray) -> None:
         """Append the TUM row of one frame (time [s], (4, 4) pose) and flush it."""
         try:
             self._write_line(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
         except OSError as error:
-            raise output_error(self.path, error) from None
+            raise OutputError.from_os_error(self.path, error) from None
 
     def _write_line(self, line: str) -> None:
         """Write ``line`` and a newline, flushed to the operating system."""
@@ -115,7 +110,7 @@ class PartialTrajectory:
         try:
             self.path.unlink(missing_ok=True)
         except OSError as error:
-            raise output_error(self.path, error) from None
+            raise OutputError.from_os_error(self.path, error) from None
 
 
 def write_run_outputs(
@@ -139,7 +134,7 @@ def write_run_outputs(
     try:
         return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats)
     except OSError as error:
-        raise output_error(out_dir, error) from None
+        raise OutputError.from_os_error(out_dir, error) from None
 
 
 def _write_run_files(

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from pld_slam.errors import PldSlamError
+from pld_slam.errors import OutputError, PldSlamError
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.synth.scenarios import FRAME_RATE, Scenario, build_scenario
 
@@ -137,13 +137,17 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
     Raises
     ------
     PldSlamError
-        For a bad scenario name, size or frame count, or an unrelated non-empty folder.
+        For a bad scenario name, size or frame count, or an unrelated non-empty folder;
+        `OutputError` for a folder that cannot be created or written.
     """
     out_dir = Path(out_dir)
     start = time.perf_counter()
     world = build_scenario(scenario, n_frames, size, seed)
-    prepare_folder(out_dir)
-    write_text_files(out_dir, world)
+    try:
+        prepare_folder(out_dir)
+        write_text_files(out_dir, world)
+    except OSError as error:  # a folder that cannot be created or written: the user's to fix
+        raise OutputError.from_os_error(out_dir, error) from None
     fractions = np.empty(world.n_frames)
     with ThreadPoolExecutor(max_workers=1) as writer:
         pending = []
