@@ -14,26 +14,13 @@ sequences) and ``--suite lines --scenario lowtexture --no-real``.
 """
 
 import argparse
-import json
 import subprocess
 import sys
 from pathlib import Path
 
 from extracts import existing_extracts
 
-from pld_slam.synth import write_sequence
-from pld_slam.synth.writer import METADATA
-
-
-def synthetic_sequence(folder: Path, scenario: str, frames: int, seed: int) -> Path:
-    """``folder``, holding the sequence (rendered unless it already holds this one)."""
-    metadata = folder / METADATA
-    if metadata.is_file():
-        written = json.loads(metadata.read_text())
-        if (written["scenario"], written["n_frames"], written["seed"]) == (scenario, frames, seed):
-            return folder
-    write_sequence(folder, scenario, frames, seed=seed)
-    return folder
+from pld_slam.report.regress import synthetic_sequence
 
 
 def main() -> None:
@@ -50,8 +37,7 @@ def main() -> None:
 
     sequences = [] if args.no_real else existing_extracts()
     for seed in args.seeds:
-        folder = args.out / "sequences" / f"{args.scenario}-seed{seed}-{args.frames}f"
-        sequences.append(synthetic_sequence(folder, args.scenario, args.frames, seed))
+        sequences.append(synthetic_sequence(args.out, args.scenario, seed, args.frames))
     command = [sys.executable, "-m", "pld_slam_cli", "ablate", *map(str, sequences), "--suite", args.suite,
                "--out", str(args.out / f"ablation-{args.suite}"), "--workers", str(args.workers)]
     for override in args.overrides:

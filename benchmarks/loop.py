@@ -51,7 +51,7 @@ from pld_slam.loop.pose_graph import PoseGraph, optimize_pose_graph, relative_po
 from pld_slam.loop.vocabulary import Vocabulary, build_vocabulary
 from pld_slam.loop.vocabulary_training import training_descriptors
 from pld_slam.run_config import load_run_config
-from pld_slam.synth import write_sequence
+from pld_slam.synth import ensure_sequence
 from pld_slam.system import RunResult, System
 
 DETECTORS = ("none", "ggs", "bow")
@@ -61,10 +61,7 @@ MIN_PAIR_GAP_S = 5.0
 
 def synthetic(out: Path, scenario: str, seed: int, frames: int) -> StereoSequence:
     """The synthetic sequence (written once into ``out``)."""
-    folder = out / f"{scenario}_{frames}_{seed}"
-    if not (folder / "poses.txt").exists():
-        write_sequence(folder, scenario, n_frames=frames, seed=seed)
-    return open_sequence(folder)
+    return open_sequence(ensure_sequence(out / f"{scenario}_{frames}_{seed}", scenario, frames, seed))
 
 
 def vocabulary_file(out: Path, seeds: list[int], branching: int, depth: int) -> Path:

@@ -15,10 +15,11 @@ from pld_slam.report.tables import to_markdown
 from pld_slam_cli.config import set_option
 
 
-def run_with_progress(out: Path, cells, workers: int, scheduler: str | None, timeout: float | None) -> list[dict]:
-    """Run the pending cells of ``cells`` with one progress bar; return the rows that failed."""
+def run_with_progress(out: Path, cells, workers: int, scheduler: str | None, timeout: float | None,
+                      pending: int) -> list[dict]:
+    """Run the ``pending`` unfinished cells of ``cells`` with one progress bar; return the rows that failed."""
     failed = []
-    with tqdm(total=len(pending_cells(out, cells)), desc="cells", unit="cell", disable=None) as bar:
+    with tqdm(total=pending, desc="cells", unit="cell", disable=None) as bar:
         def done(row: dict) -> None:
             bar.update()
             if row["status"] == "failed":
@@ -71,7 +72,7 @@ def ablate_command(sequence_dirs: tuple[Path, ...], suite_name: str, out: Path |
     start = time.perf_counter()
     cells = prepare_ablation(out, sequence_dirs, suite, overrides, max_frames)
     to_run = len(pending_cells(out, cells))
-    failed = run_with_progress(out, cells, workers, scheduler, timeout)
+    failed = run_with_progress(out, cells, workers, scheduler, timeout, to_run)
     table = write_report(out)
     click.echo(to_markdown(table))
     click.echo(f"{len(cells)} cells: {to_run} run ({len(failed)} failed), {len(cells) - to_run} reused; "

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from pld_slam.datasets import open_sequence
 from pld_slam.io.run_output import TRAJECTORY_TUM
 from pld_slam.io.trajectory import read_tum
-from pld_slam.report.cells import CellSpec, open_sequences, plan_cells
+from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.plots import plot_ate_bars, plot_variant_trajectories
 from pld_slam.report.store import (
     ROW_COLUMNS,
@@ -46,7 +47,7 @@ def prepare_ablation(
     PldSlamError
         For an unreadable sequence or an invalid cell config, before anything runs.
     """
-    sequences = open_sequences(sequence_dirs)
+    sequences = [open_sequence(Path(folder)) for folder in sequence_dirs]
     cells = plan_cells(sequences, suite, overrides, max_frames)
     labels = list(dict.fromkeys(spec.sequence for spec in cells))
     write_ablation(out, suite, labels, [str(Path(d).resolve()) for d in sequence_dirs])

@@ -31,7 +31,7 @@ from pathlib import Path
 
 from pld_slam import __version__
 from pld_slam.config import Config, config_to_dict, dump_config
-from pld_slam.datasets import StereoSequence, open_sequence
+from pld_slam.datasets import StereoSequence
 from pld_slam.loop.loop_closing import check_vocabulary_given
 from pld_slam.report.suite import Suite
 from pld_slam.run_config import load_run_config
@@ -174,11 +174,6 @@ def plan_cells(
                 max_frames=max_frames,
             ))
     return cells
-
-
-def open_sequences(sequence_dirs: Sequence[Path]) -> list[StereoSequence]:
-    """`open_sequence` of each folder (its errors name the folder)."""
-    return [open_sequence(Path(folder)) for folder in sequence_dirs]
 
 
 def run_command(spec: CellSpec, run_dir: Path, config_path: Path) -> list[str]:

@@ -37,8 +37,7 @@ from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.runner import run_cells
 from pld_slam.report.store import read_cell
 from pld_slam.report.suite import Suite, Variant, check_overrides
-from pld_slam.synth.writer import METADATA as SYNTH_METADATA
-from pld_slam.synth.writer import write_sequence
+from pld_slam.synth.writer import ensure_sequence
 
 DEFAULT_TOLERANCE = {"relative": 0.10, "absolute_m": 0.001}
 
@@ -146,14 +145,7 @@ def resolve_sequence(reference: dict, work: Path) -> tuple[Path | None, str]:
 
 def synthetic_sequence(work: Path, scenario: str, seed: int, frames: int) -> Path:
     """The folder of a generated sequence, rendered into ``work/sequences`` unless already there."""
-    folder = Path(work) / "sequences" / f"{scenario}-seed{seed}-{frames}f"
-    metadata = folder / SYNTH_METADATA
-    if metadata.is_file():
-        written = json.loads(metadata.read_text())
-        if (written.get("scenario"), written.get("seed"), written.get("n_frames")) == (scenario, seed, frames):
-            return folder
-    write_sequence(folder, scenario, frames, seed=seed)
-    return folder
+    return ensure_sequence(Path(work) / "sequences" / f"{scenario}-seed{seed}-{frames}f", scenario, frames, seed)
 
 
 def baseline_cells(

@@ -6,12 +6,13 @@ exact ground-truth poses and per-frame masks of the pixels on moving objects.
 
 - `build_scenario` builds one of `SCENARIOS` in memory; ``Scenario.render_frame(i)`` gives
   the left and right uint8 images and the left dynamic mask of frame ``i``.
-- `write_sequence` writes a scenario in the KITTI odometry layout (plus dynamic masks).
+- `write_sequence` writes a scenario in the KITTI odometry layout (plus dynamic masks);
+  `ensure_sequence` only when the folder does not already hold it.
 """
 
 from pld_slam.synth.render import SynthFrame, View, render_stereo_frame
 from pld_slam.synth.scenarios import DEFAULT_FRAMES, MIN_FRAMES, MIN_LOOP_FRAMES, SCENARIOS, Scenario, build_scenario
-from pld_slam.synth.writer import SynthSummary, write_sequence
+from pld_slam.synth.writer import SynthSummary, ensure_sequence, write_sequence
 
 __all__ = [
     "DEFAULT_FRAMES",
@@ -23,6 +24,7 @@ __all__ = [
     "SynthSummary",
     "View",
     "build_scenario",
+    "ensure_sequence",
     "render_stereo_frame",
     "write_sequence",
 ]

@@ -177,3 +177,21 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
         pairs_per_second=world.n_frames / seconds,
         mean_dynamic_fraction=float(fractions.mean()),
     )
+
+
+def ensure_sequence(out_dir: Path, scenario: str, n_frames: int, seed: int = 0) -> Path:
+    """``out_dir``, holding scenario ``scenario`` of ``n_frames`` frames and ``seed`` at the
+    default size: written by `write_sequence` unless its ``synth.json`` says it already is.
+
+    For callers that keep generated sequences between runs (regression cells, benchmarks):
+    rendering a few hundred frames takes tens of seconds.
+    """
+    out_dir = Path(out_dir)
+    metadata = out_dir / METADATA
+    if metadata.is_file():
+        written = json.loads(metadata.read_text())
+        if (written.get("scenario"), written.get("n_frames"), written.get("seed")) == (scenario, n_frames, seed):
+            return out_dir
+    write_sequence(out_dir, scenario, n_frames, seed=seed)
+    return out_dir
+
