@@ -1,35 +1,48 @@
-"""Dynamic-feature detection: the four variants of the paper's Table I side by side.
+"""Dynamic scenes: the detectors against neither and against the true masks (the dynamic-scenes issue's figures).
 
-For each sequence, runs the pipeline with neither detector, the dynamic grid only, the
-dynamic LLG only, and both, and prints ATE RMSE (and its ratio to "neither"), the share of
-matched features marked dynamic, precision / recall of the dynamic point and line labels
-against the moving-object masks (synthetic sequences), and the median ms per frame the
-detection costs. Sequences with masks get a fifth row, "masks": the labels taken from the
-ground-truth masks (``dynamic.from_masks``), the ATE a perfect detector would reach.
-Sequences: synthetic ``dynamic`` (several seeds) and ``static``, and the real KITTI raw
-0005 (dynamic) and KITTI odometry 06 (static) extracts when found.
+For each sequence, runs the pipeline (mapping on, the family config) with neither detector,
+the dynamic grid only, the dynamic LLG only, both, and, where the sequence has masks,
+"masks": the labels taken from the ground-truth masks (``dynamic.from_masks``), the ATE a
+perfect detector would reach. Prints per run ATE RMSE (and its ratio to "neither" and to
+"masks"), the share of matched features marked dynamic, precision / recall of the dynamic
+point and line labels against the masks, the median ms per frame of detection (the two
+detectors and the static-world check) and in all.
 
-    python benchmarks/dynamic.py [--seeds 0 1 2] [--frames 100] [--out /tmp/pld_slam_dynamic]
+Sections (``--section``, all by default):
+
+- ``scenes``: synthetic ``convoy`` and ``crossing`` (movers a robust solve follows: the
+  figures to reach), ``dynamic`` (the easy case) on ``--seeds``, and ``static`` (first
+  seed); then per scenario over the seeds: mean ATE of each variant, its ratio to neither
+  and to masks (of the means), and precision / recall pooled over every frame.
+- ``real``: KITTI odometry 06 (static) and KITTI raw 0005 (dynamic), neither and both,
+  when found through ``$PLD_SLAM_DATA``; the detection ms there is the cost per KITTI frame.
+- ``parked``: synthetic ``parked_then_moving`` on ``--seeds`` with both detectors: the
+  landmarks each parked car gave the map before it pulled out, and how many of them are
+  still alive at the 5th keyframe after it started moving (figure: none). A landmark
+  belongs to the object whose surface its creating feature lay on (the renderer's object
+  ids at that keyframe's frame).
+
+    python benchmarks/dynamic.py [--section scenes real parked] [--seeds 0 1 2]
+                                 [--variants neither grid llg both masks] [--out DIR]
                                  [--set tracking.reference_max_age=1 ...]
-
-``--set`` overrides the configuration of every run, e.g. frame-to-frame tracking
-(``tracking.reference_max_age=1``), where movers hurt the pose more.
 """
 
 import argparse
-import os
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
+from extracts import existing_extracts
 
 from pld_slam.datasets import StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
+from pld_slam.mapping.map import Map
 from pld_slam.run_config import load_run_config
-from pld_slam.synth import write_sequence
-from pld_slam.system import System
+from pld_slam.synth.scenarios import DEFAULT_FRAMES, build_scenario
+from pld_slam.synth.writer import ensure_sequence
+from pld_slam.system import FrameRecord, System
 
-REPO = Path(__file__).resolve().parents[1]
 VARIANTS = {
     "neither": ("dynamic.grid=false", "dynamic.llg=false"),
     "grid": ("dynamic.grid=true", "dynamic.llg=false"),
@@ -37,10 +50,11 @@ VARIANTS = {
     "both": ("dynamic.grid=true", "dynamic.llg=true"),
     "masks": ("dynamic.from_masks=true",),
 }
-REAL = (
-    "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync",
-    "kitti_odometry/sequences/06",
-)
+REAL = ("kitti_odometry/sequences/06", "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync")
+HARD_SCENES = ("convoy", "crossing")
+SIZE = (640, 480)
+"""Image size of the generated sequences (`ensure_sequence` writes the default size)."""
+KEYFRAMES_AFTER_START = 5
 
 
 def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
@@ -66,34 +80,13 @@ def count_columns(table: pd.DataFrame) -> list[str]:
     return [column for column in table.columns if column.startswith(("points ", "lines "))]
 
 
-def pooled(rows: pd.DataFrame) -> pd.DataFrame:
-    """Per variant over the synthetic dynamic sequences: ATE / neither (mean, min, max) and
-    precision / recall of the labels pooled over all their frames."""
-    table = {}
-    for variant, group in rows.groupby("variant", sort=False):
-        counts = group[count_columns(group)].sum()
-        table[variant] = {
-            "ATE / neither mean": group["ATE / neither"].mean(),
-            "min": group["ATE / neither"].min(),
-            "max": group["ATE / neither"].max(),
-            **{
-                f"{short} {measure}": counts[f"{kind} flagged_on_them"] / counts[f"{kind} {total}"]
-                if counts[f"{kind} {total}"] else float("nan")
-                for kind, short in (("points", "pt"), ("lines", "line"))
-                for measure, total in (("P", "flagged"), ("R", "on_moving_objects"))
-            },
-        }
-    return pd.DataFrame(table).T
-
-
-def rows_for(folder: Path, extra: tuple[str, ...]) -> list[dict]:
-    """One row per variant on the sequence in ``folder`` ("masks" only where it has masks)."""
-    sequence = open_sequence(folder)
+def rows_for(sequence: StereoSequence, variants: list[str], extra: tuple[str, ...]) -> list[dict]:
+    """One row per variant on ``sequence`` ("masks" only where it has masks)."""
     rows = []
-    for variant, overrides in VARIANTS.items():
+    for variant in variants:
         if variant == "masks" and sequence.dynamic_mask_paths is None:
             continue
-        summary = run_variant(sequence, extra + overrides)
+        summary = run_variant(sequence, extra + VARIANTS[variant])
         dynamic = summary["dynamic"]
         rows.append({
             "sequence": summary["sequence"],
@@ -108,38 +101,165 @@ def rows_for(folder: Path, extra: tuple[str, ...]) -> list[dict]:
             "total ms": summary["timing_ms"]["total"]["median"],
             **label_count_columns(dynamic),
         })
-    neither = rows[0]["ATE [m]"]
+    by_variant = {row["variant"]: row["ATE [m]"] for row in rows}
     for row in rows:
-        row["ATE / neither"] = row["ATE [m]"] / neither
+        row["ATE / neither"] = row["ATE [m]"] / by_variant["neither"] if "neither" in by_variant else np.nan
+        row["ATE / masks"] = row["ATE [m]"] / by_variant["masks"] if "masks" in by_variant else np.nan
     return rows
+
+
+def pooled(rows: pd.DataFrame) -> pd.DataFrame:
+    """Per variant over a scenario's seeds: mean ATE, its ratio to the mean ATE of neither and
+    of masks, and precision / recall of the labels pooled over all their frames."""
+    means = rows.groupby("variant", sort=False)["ATE [m]"].mean()
+    table = {}
+    for variant, group in rows.groupby("variant", sort=False):
+        counts = group[count_columns(group)].sum()
+        table[variant] = {
+            "mean ATE [m]": means[variant],
+            "/ neither": means[variant] / means["neither"] if "neither" in means else np.nan,
+            "/ masks": means[variant] / means["masks"] if "masks" in means else np.nan,
+            **{
+                f"{short} {measure}": counts[f"{kind} flagged_on_them"] / counts[f"{kind} {total}"]
+                if counts[f"{kind} {total}"] else float("nan")
+                for kind, short in (("points", "pt"), ("lines", "line"))
+                for measure, total in (("P", "flagged"), ("R", "on_moving_objects"))
+            },
+            "marked %": group["marked %"].mean(),
+        }
+    return pd.DataFrame(table).T
+
+
+def print_table(table: pd.DataFrame) -> None:
+    print(table.to_string(float_format=lambda x: f"{x:.3f}"), flush=True)
+
+
+def scenes(out: Path, seeds: list[int], variants: list[str], extra: tuple[str, ...]) -> None:
+    """The ``scenes`` section (module docstring)."""
+    rows = []
+    for scenario, scenario_seeds in [*((name, seeds) for name in (*HARD_SCENES, "dynamic")), ("static", seeds[:1])]:
+        for seed in scenario_seeds:
+            folder = ensure_sequence(out / f"{scenario}_{seed}", scenario, DEFAULT_FRAMES[scenario], seed)
+            sequence_rows = rows_for(open_sequence(folder), variants, extra)
+            rows += [dict(row, scenario=scenario, sequence=f"synth_{scenario}_{seed}") for row in sequence_rows]
+            table = pd.DataFrame(sequence_rows)
+            print_table(table.drop(columns=count_columns(table)).set_index(["sequence", "variant"]))
+    table = pd.DataFrame(rows)
+    print("\nevery run:")
+    print_table(table.drop(columns=[*count_columns(table), "scenario"]).set_index(["sequence", "variant"]))
+    for scenario, group in table.groupby("scenario", sort=False):
+        print(f"\n{scenario}, seeds {' '.join(map(str, seeds if scenario != 'static' else seeds[:1]))}: "
+              "means over seeds, labels pooled over all frames")
+        print_table(pooled(group))
+
+
+def real(variants: list[str], extra: tuple[str, ...]) -> None:
+    """The ``real`` section (module docstring)."""
+    rows = []
+    for folder in existing_extracts(REAL):
+        rows += rows_for(open_sequence(folder), [v for v in variants if v in ("neither", "both")], extra)
+    if rows:
+        table = pd.DataFrame(rows)
+        print("\nreal extracts:")
+        print_table(table.drop(columns=count_columns(table)).set_index(["sequence", "variant"]))
+
+
+def start_frames(world) -> dict[int, int]:
+    """Object id -> the first frame at which each mover of the scenario moves (movers that do)."""
+    starts = {}
+    for mover in world.scene.moving:
+        moving = [i for i in range(world.n_frames) if mover.moves_at(i)]
+        if moving:
+            starts[mover.object_id] = moving[0]
+    return starts
+
+
+def landmark_owners(world_map: Map, keyframe_id: int, world) -> list[dict[int, int]]:
+    """Per landmark kind (points, lines), ``{landmark id: object id}`` of the landmarks keyframe
+    ``keyframe_id`` created: the object under its creating feature in the rendered frame."""
+    keyframe = world_map.keyframes[keyframe_id]
+    object_id = world.render_views(keyframe.frame_index)[0].object_id
+    height, width = object_id.shape
+    owners = []
+    for kind, pixels in zip(world_map.kinds, (keyframe.features.keypoints.uv,
+                                              keyframe.features.lines.endpoints.reshape(-1, 2, 2).mean(axis=1))):
+        created = np.flatnonzero(kind.first_keyframe[: len(kind)] == keyframe_id)
+        features = [kind.observers[landmark][keyframe_id] for landmark in created]
+        u = np.clip(np.rint(pixels[features, 0]).astype(int), 0, width - 1) if features else np.zeros(0, int)
+        v = np.clip(np.rint(pixels[features, 1]).astype(int), 0, height - 1) if features else np.zeros(0, int)
+        owners.append(dict(zip(created.tolist(), object_id[v, u].tolist())))
+    return owners
+
+
+def parked_run(folder: Path, seed: int, extra: tuple[str, ...]) -> list[dict]:
+    """One ``parked_then_moving`` run with both detectors: a row per car that pulled out (module docstring)."""
+    sequence = open_sequence(folder)
+    world = build_scenario("parked_then_moving", len(sequence), SIZE, seed)
+    starts = start_frames(world)
+    config = load_run_config(sequence, overrides=extra + VARIANTS["both"]).config
+    owners: list[dict[int, int]] = [{}, {}]
+    keyframes_after: dict[int, int] = dict.fromkeys(starts, 0)
+    alive_after: dict[int, tuple[int, int]] = {}
+    system: System
+
+    def on_record(record: FrameRecord) -> None:
+        if record.keyframe is None:
+            return
+        world_map = system.local_mapping.map
+        for kind_owners, new in zip(owners, landmark_owners(world_map, record.reference_keyframe, world)):
+            kind_owners.update(new)
+        for mover, start in starts.items():
+            if record.index >= start and mover not in alive_after:
+                keyframes_after[mover] += 1
+                if keyframes_after[mover] == KEYFRAMES_AFTER_START:
+                    alive_after[mover] = tuple(
+                        sum(1 for landmark, owner in kind_owners.items() if owner == mover and kind.alive[landmark])
+                        for kind, kind_owners in zip(world_map.kinds, owners))
+
+    system = System(sequence, config, record_observer=on_record)
+    system.run()
+    rows = []
+    for mover, start in starts.items():
+        created = [sum(1 for landmark, owner in kind_owners.items() if owner == mover) for kind_owners in owners]
+        alive = alive_after.get(mover, (np.nan, np.nan))
+        rows.append({"sequence": sequence.name, "car": mover, "starts at frame": start,
+                     "points made": created[0], "lines made": created[1],
+                     f"points alive at KF+{KEYFRAMES_AFTER_START}": alive[0],
+                     f"lines alive at KF+{KEYFRAMES_AFTER_START}": alive[1]})
+    return rows
+
+
+def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
+    """The ``parked`` section (module docstring)."""
+    rows = []
+    for seed in seeds:
+        folder = ensure_sequence(out / f"parked_then_moving_{seed}", "parked_then_moving",
+                                 DEFAULT_FRAMES["parked_then_moving"], seed)
+        rows += parked_run(folder, seed, extra)
+    table = pd.DataFrame(rows)
+    print(f"\nparked_then_moving, both detectors: landmarks on each car that pulled out, and those alive "
+          f"{KEYFRAMES_AFTER_START} keyframes after it started (NaN: the run ended first)")
+    print(table.to_string(index=False), flush=True)
+    alive = table.filter(like="alive").to_numpy(dtype=float)
+    print(f"alive at KF+{KEYFRAMES_AFTER_START} in all: {int(np.nansum(alive))}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--section", nargs="+", choices=("scenes", "real", "parked"),
+                        default=["scenes", "real", "parked"])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--frames", type=int, default=100)
+    parser.add_argument("--variants", nargs="+", choices=tuple(VARIANTS), default=list(VARIANTS))
     parser.add_argument("--out", type=Path, default=Path(tempfile.gettempdir()) / "pld_slam_dynamic")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
     extra = tuple(args.overrides)
-    rows = []
-    for scenario, seeds in (("dynamic", args.seeds), ("static", args.seeds[:1])):
-        for seed in seeds:
-            folder = args.out / f"{scenario}_{seed}"
-            write_sequence(folder, scenario, n_frames=args.frames, seed=seed)
-            synthetic_rows = rows_for(folder, extra)
-            rows += [dict(row, sequence=f"synth_{scenario}_{seed}") for row in synthetic_rows]
-    data_dir = Path(os.environ.get("PLD_SLAM_DATA", REPO.parent / "shared" / "data"))
-    for relative in REAL:
-        if (data_dir / relative).is_dir():
-            rows += rows_for(data_dir / relative, extra)
-        else:
-            print(f"skipped {data_dir / relative}: not found (set PLD_SLAM_DATA)")
-    table = pd.DataFrame(rows)
-    print(table.drop(columns=count_columns(table)).to_string(index=False, float_format=lambda x: f"{x:.3f}"))
-    dynamic = table[table["sequence"].str.startswith("synth_dynamic")]
-    print(f"\nsynthetic dynamic, seeds {' '.join(map(str, args.seeds))} pooled:")
-    print(pooled(dynamic).to_string(float_format=lambda x: f"{x:.3f}"))
+    if "scenes" in args.section:
+        scenes(args.out, args.seeds, args.variants, extra)
+    if "real" in args.section:
+        real(args.variants, extra)
+    if "parked" in args.section:
+        parked(args.out, args.seeds, extra)
 
 
 if __name__ == "__main__":

@@ -178,6 +178,15 @@ class DynamicConfig:
         0.7, "a line of a dynamic LLG, or a feature dynamic before, is dynamic when its error exceeds this times the "
         "threshold", 0.0
     )
+    rival_min_share: float = _param(
+        0.25, "the robust solve's outliers, when at least this share of the matches, are solved on their own as a "
+        "rival motion, and the static world's is chosen (pld_slam.tracking.static_world)", 0.0, 1.0
+    )
+    motion_prior_m: float = _param(
+        0.05, "expected error of the constant-velocity prediction per frame [m]: a motion within it agrees with the "
+        "motion model", 0.0
+    )
+    motion_prior_deg: float = _param(0.5, "... and [deg]", 0.0)
     from_masks: bool = _param(
         False, "take the labels from the sequence's dynamic_masks/ instead of the two detectors (ground truth or a "
         "segmentation: the best any detector could do)"

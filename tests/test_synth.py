@@ -150,6 +150,53 @@ def test_dynamic_mask_follows_the_truck_ahead_and_matches_the_rendered_frame():
     assert 4.0 < 1.0 / left.inv_depth[centre] < 6.5
 
 
+def test_convoy_movers_drive_with_the_camera_and_cover_a_third_of_the_image():
+    world = scenario("convoy", size=TINY, n_frames=150)
+    camera_path = world.poses[:, :3, 3]
+    fractions = []
+    for index in range(0, world.n_frames, 10):
+        frame = world.render_frame(index)
+        fractions.append(frame.dynamic_mask.mean())
+        bus_in_camera = np.linalg.inv(world.poses[index]) @ world.scene.moving[0].poses[index]
+        assert -2.0 < bus_in_camera[2, 3] < 9.0 and bus_in_camera[0, 3] < -3.0  # alongside, to the left
+    bus_path = world.scene.moving[0].poses[:, :3, 3]
+    assert np.linalg.norm(bus_path[-1] - bus_path[0]) > 0.8 * np.linalg.norm(camera_path[-1] - camera_path[0])
+    fractions = np.array(fractions)
+    assert fractions.mean() > 0.28 and fractions.min() > 0.2 and fractions.max() < 0.6, fractions
+
+
+def test_crossing_crowd_crosses_while_the_camera_waits_and_is_unmasked_until_it_sets_off():
+    world = scenario("crossing", size=TINY, n_frames=180)
+    steps = np.linalg.norm(np.diff(world.poses[:, :3, 3], axis=0), axis=1)
+    stopped = np.flatnonzero(steps < 1e-9)
+    assert len(stopped) >= 80  # 9 s at 10 Hz, minus the frames either side
+    middle = stopped[len(stopped) // 2]
+    assert world.render_frame(middle).dynamic_mask.mean() > 0.15
+    waiting = [obj for obj in world.scene.moving if not obj.moves_at(stopped[0] - 10)]
+    assert len(waiting) > 30  # most of the crowd still waits at the kerb
+    walking = {obj.object_id for obj in world.scene.moving if obj.moves_at(middle)}
+    left, _ = world.render_views(middle)
+    np.testing.assert_array_equal(world.render_frame(middle).dynamic_mask, np.isin(left.object_id, list(walking)))
+
+
+def test_parked_cars_stay_put_and_unmasked_until_the_camera_comes_within_20_m():
+    world = scenario("parked_then_moving", size=TINY, n_frames=150)
+    started = 0
+    for obj in world.scene.moving:
+        moving = np.array([obj.moves_at(i) for i in range(world.n_frames)])
+        if not moving.any():
+            continue
+        start = int(np.argmax(moving))
+        assert start > 5 and moving[start:].all()  # parked for a while, then drives on
+        assert np.allclose(obj.poses[:start], obj.poses[0])
+        ahead = np.linalg.inv(world.poses[start]) @ obj.poses[start]
+        assert 18.0 < np.linalg.norm(ahead[:3, 3]) < 22.0
+        gaps = [np.linalg.norm((np.linalg.inv(world.poses[i]) @ obj.poses[i])[:3, 3]) for i in range(world.n_frames)]
+        assert min(gaps) > 10.0  # it pulls out well clear of us
+        started += 1
+    assert started >= 2
+
+
 def test_static_and_lowtexture_masks_are_empty():
     for name in ("static", "lowtexture"):
         assert not scenario(name).render_frame(3).dynamic_mask.any()

@@ -124,6 +124,11 @@ class ObservationMasks:
             line_horizontal=lines.horizontal_eligible & use_line_horizontal,
         )
 
+    def __and__(self, other: "ObservationMasks") -> "ObservationMasks":
+        """The observations in both."""
+        return ObservationMasks(self.points & other.points, self.lines & other.lines,
+                                self.line_horizontal & other.line_horizontal)
+
 
 
 class RowEvaluation(NamedTuple):

@@ -209,6 +209,7 @@ def optimize_pose_rejecting_outliers(
     points: PointObservations | None = None,
     lines: LineObservations | None = None,
     options: PoseOnlyOptions = PoseOnlyOptions(),
+    within: ObservationMasks | None = None,
 ) -> PoseOnlyResult:
     """`optimize_pose` over up to ``options.rounds`` rounds, each using the inliers of the last.
 
@@ -217,11 +218,16 @@ def optimize_pose_rejecting_outliers(
     ``options.robust_rounds`` rounds. A round whose inliers are the observations it used
     has reached a fixed point: the next rounds with the same loss would solve the same
     problem from its solution, so they are skipped. Stops at the first failed round and
-    returns it; ``nfev`` and ``rounds`` count all rounds run. Arguments as in `optimize_pose`.
+    returns it; ``nfev`` and ``rounds`` count all rounds run. ``within``: the only
+    observations any round may use (None: all); the result's inliers are among them.
+    Other arguments as in `optimize_pose`.
     """
     points = PointObservations.empty() if points is None else points
     lines = LineObservations.empty() if lines is None else lines
-    include = ObservationMasks.all_usable(points, lines, options.use_line_horizontal)
+    allowed = ObservationMasks.all_usable(points, lines, options.use_line_horizontal)
+    if within is not None:
+        allowed = allowed & within
+    include = allowed
     every_row = WhitenedRows.of(points, lines, lines)
     T_c_w, at_pose = T_c_w_init, every_row.evaluate(camera, T_c_w_init, T_c_w_init, options.min_depth)
     nfev, rounds, round_index = 0, 0, 0
@@ -231,10 +237,11 @@ def optimize_pose_rejecting_outliers(
         nfev, rounds = nfev + result.nfev, rounds + result.rounds
         if not result.success:
             break
-        fixed_point = _same_masks(result.inliers, include)
-        T_c_w, include = result.T_c_w, result.inliers
+        inliers = result.inliers & allowed
+        fixed_point = _same_masks(inliers, include)
+        T_c_w, include = result.T_c_w, inliers
         round_index = _first_round_with_another_loss(round_index, options) if fixed_point else round_index + 1
-    return dataclasses.replace(result, nfev=nfev, rounds=rounds)
+    return dataclasses.replace(result, nfev=nfev, rounds=rounds, inliers=result.inliers & allowed)
 
 
 class _PoseProblem:

@@ -375,5 +375,5 @@ def render_stereo_frame(scene: Scene, camera: StereoCamera, T_w_c: np.ndarray, f
     return SynthFrame(
         left=sensor_image(left.radiance, np.random.default_rng((seed, frame, 0))),
         right=sensor_image(right.radiance, np.random.default_rng((seed, frame, 1))),
-        dynamic_mask=left.object_id != STATIC_OBJECT,
+        dynamic_mask=np.isin(left.object_id, scene.moving_ids_at(frame)),
     )

@@ -52,7 +52,7 @@ integer coordinates, baseline 0.5 m, camera 1.6 m above the road, 10 Hz.
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -79,9 +79,11 @@ from pld_slam.synth.scene import (
     yaw_pose,
 )
 
-SCENARIOS = ("static", "dynamic", "loop", "lowtexture", "loop2", "nearmiss")
+SCENARIOS = ("static", "dynamic", "loop", "lowtexture", "loop2", "nearmiss", "convoy", "crossing",
+             "parked_then_moving")
 """Names accepted by `build_scenario`."""
-DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100, "loop2": 720, "nearmiss": 300}
+DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100, "loop2": 720, "nearmiss": 300,
+                  "convoy": 150, "crossing": 180, "parked_then_moving": 150}
 MIN_LOOP_FRAMES = 300
 MIN_FRAMES = {
     # name: (fewest frames, what they are needed for): about 1 m per frame at most.
@@ -721,6 +723,182 @@ def traffic(path: Path, camera_s: np.ndarray, times: np.ndarray, s_end: float, s
     return tuple(movers)
 
 
+# --- movers a robust solve alone cannot reject (the dynamic-scenes issue) ----------------------
+
+BUS_SIZE = (2.55, 3.2, 12.0)
+CONVOY_SPEED = (8.0, 1.5, 11.0)
+"""The camera's speed in ``convoy``: mean [m/s], swing [m/s] and period [s] of a sine."""
+CROSSING_CYCLE = ((2.0, 5.0), (2.5, 0.0), (9.0, 0.0), (2.5, 5.0), (3.0, 5.0))
+"""The camera's speed in ``crossing``, one junction per cycle: phases of (duration [s],
+speed at its end [m/s]), the speed changing linearly over each: cruise at 5 m/s, brake
+to a stop, wait 9 s (until the crowd has cleared our lane), pull away, cruise. 19 s per
+junction."""
+PULL_OUT_DISTANCE = 20.0
+"""In ``parked_then_moving``, a parked car pulls out when the camera is this far [m] behind it."""
+
+
+def arc_lengths(times: np.ndarray, speed: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """Distance driven (N,) [m] at ``times`` (N,) [s] from ``times[0]`` at ``speed(t)`` [m/s],
+    integrated on a 1 ms grid (trapezoids)."""
+    grid = np.arange(times[0], times[-1] + 1e-3, 1e-3)
+    step = 0.5 * (speed(grid[1:]) + speed(grid[:-1])) * np.diff(grid)
+    return np.interp(times, grid, np.concatenate([[0.0], np.cumsum(step)]))
+
+
+def convoy_speed(t: np.ndarray) -> np.ndarray:
+    """The camera's speed [m/s] at times ``t`` [s] in ``convoy`` (`CONVOY_SPEED`)."""
+    mean, swing, period = CONVOY_SPEED
+    return mean + swing * np.sin(2.0 * np.pi * t / period)
+
+
+def crossing_speed(t: np.ndarray) -> np.ndarray:
+    """The camera's speed [m/s] at times ``t`` [s] in ``crossing`` (`CROSSING_CYCLE`, repeated)."""
+    durations = np.array([d for d, _ in CROSSING_CYCLE])
+    ends = np.array([v for _, v in CROSSING_CYCLE])
+    knots = np.concatenate([[0.0], np.cumsum(durations)])
+    speeds = np.concatenate([[ends[-1]], ends])
+    return np.interp(np.asarray(t) % knots[-1], knots, speeds)
+
+
+def crossing_stops(times: np.ndarray) -> np.ndarray:
+    """Times [s] within ``times`` at which ``crossing``'s camera comes to a stop."""
+    durations = [d for d, _ in CROSSING_CYCLE]
+    first, cycle = sum(durations[:2]), sum(durations)
+    return np.arange(first, times[-1], cycle)
+
+
+def with_box_materials(palette: Palette, side: tx.Texture, end: tx.Texture) -> tuple[Palette, BoxMaterials]:
+    """``palette`` with two more textures, and the materials of a box using them; the
+    palette's own materials (and their random draws) stay as they are."""
+    first = len(palette.textures)
+    materials = BoxMaterials(side=first, end=first + 1, top=palette.car.top)
+    return replace(palette, textures=(*palette.textures, side, end)), materials
+
+
+def convoy_traffic(path: Path, camera_s: np.ndarray, times: np.ndarray, seed: int,
+                   palette: Palette, bus: BoxMaterials) -> tuple[MovingObject, ...]:
+    """The movers of ``convoy``, all driving our way at about our speed:
+
+    - a bus in the lane to our left, its middle 1 m behind to 8 m ahead of the camera (a sine of
+      16-20 s): alongside and just ahead it fills the left half of the image;
+    - a queue ahead in our lane: a truck whose middle is 8.5-11.5 m ahead, a car 7 m
+      further, the gap breathing over 6-9 s.
+
+    Together they cover 30-45 % of a frame (seeds 0-2), for the whole sequence.
+
+    To a robust solve their features say "the camera stands still": a coherent group
+    beside the static scene's, as large or larger.
+    """
+    rng = rng_for(seed, 4)
+    zeros = np.zeros_like(times)
+
+    def breathing(mean: float, swing: float, periods: tuple[float, float]) -> np.ndarray:
+        period, phase = rng.uniform(*periods), rng.uniform(0.0, 2.0 * np.pi)
+        return mean + swing * np.sin(2.0 * np.pi * times / period + phase)
+
+    lead = breathing(3.5, 4.5, (16.0, 20.0))
+    movers = [mover(1, box(*BUS_SIZE, bus, 0.95), track_poses(path, camera_s + lead, zeros - LANE, zeros))]
+    gap = breathing(10.0, 1.5, (6.0, 9.0))
+    truck = box(*TRUCK_SIZE, palette.truck, 0.9)
+    movers.append(mover(2, truck, track_poses(path, camera_s + gap, zeros, zeros)))
+    car = box(*CAR_SIZE, palette.car, float(rng.uniform(0.3, 1.1)))
+    gap = gap + 0.5 * TRUCK_SIZE[2] + 2.5 + 0.5 * CAR_SIZE[2]
+    movers.append(mover(3, car, track_poses(path, camera_s + gap, zeros, zeros)))
+    return tuple(movers)
+
+
+def walk_across(times: np.ndarray, start: float, s: float, l_from: float, l_to: float,
+                speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position ``(s, l)`` and heading (N,) at ``times`` (N,) [s] of someone waiting at
+    ``(s, l_from)`` who crosses to ``l_to`` at ``speed`` [m/s] from time ``start``, facing
+    the way across throughout."""
+    lateral = l_from + np.sign(l_to - l_from) * np.clip(speed * (times - start), 0.0, abs(l_to - l_from))
+    yaw = np.full_like(times, 0.5 * np.pi * np.sign(l_to - l_from))
+    return np.full_like(times, s), lateral, yaw
+
+
+CROWD = 60
+"""Pedestrians crossing at each of ``crossing``'s junctions (and 3 cyclists)."""
+
+
+def crossing_crowd(path: Path, camera_s: np.ndarray, times: np.ndarray, seed: int,
+                   palette: Palette) -> tuple[MovingObject, ...]:
+    """The movers of ``crossing``: at each stop of the camera, `CROWD` pedestrians and 3
+    cyclists cross the street 4-8 m in front of it, 80 % of them from right to left,
+    setting off together within 2.5 s of the stop (the lights changed). They wait at the
+    kerb before, so they are part of the static scene until they set off.
+    """
+    rng = rng_for(seed, 5)
+    right, left = ROAD_RIGHT + 0.8, ROAD_LEFT - 0.8
+    movers: list[MovingObject] = []
+    for stop in crossing_stops(times):
+        s_stop = float(np.interp(stop, times, camera_s))
+        for walker in range(CROWD + 3):
+            cyclist = walker >= CROWD
+            l_from, l_to = (right, left) if rng.random() < 0.8 else (left, right)
+            start = stop + rng.uniform(-1.0, 1.5)
+            speed = rng.uniform(3.5, 4.5) if cyclist else rng.uniform(1.1, 1.6)
+            s, lateral, yaw = walk_across(times, start, s_stop + rng.uniform(4.0, 8.0),
+                                          l_from + rng.uniform(-0.6, 0.6), l_to, speed)
+            size, look = (CYCLIST_SIZE, palette.cyclist) if cyclist else (PEDESTRIAN_SIZE, palette.pedestrian)
+            body = box(*size, look, float(rng.uniform(0.7, 1.1)))
+            movers.append(mover(len(movers) + 1, body, track_poses(path, s, lateral, yaw)))
+    return tuple(movers)
+
+
+def pull_out_track(times: np.ndarray, start: float, s_parked: float, l_parked: float,
+                   l_lane: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position ``(s, l)`` and heading (N,) of a car parked at ``(s_parked, l_parked)`` that
+    pulls out at time ``start`` [s]: it accelerates at 4 m/s^2 up to 12 m/s (faster than the
+    camera, which it lets come no closer than 12 m) while easing over to the lane at
+    ``l_lane`` within 3 s, then drives on."""
+    elapsed = np.clip(times - start, 0.0, None)
+    top_speed, acceleration = 12.0, 4.0
+    ramp = top_speed / acceleration
+    s = s_parked + np.where(elapsed < ramp, 0.5 * acceleration * elapsed**2,
+                            0.5 * top_speed * ramp + top_speed * (elapsed - ramp))
+    blend = 0.5 - 0.5 * np.cos(np.pi * np.clip(elapsed / 3.0, 0.0, 1.0))
+    lateral = l_parked + (l_lane - l_parked) * blend
+    speed = np.minimum(acceleration * elapsed, top_speed)
+    drift = (l_lane - l_parked) * 0.5 * np.pi / 3.0 * np.sin(np.pi * np.clip(elapsed / 3.0, 0.0, 1.0))
+    yaw = np.where(elapsed > 0.0, np.arctan2(drift, np.maximum(speed, 1e-6)), 0.0)
+    return s, lateral, yaw
+
+
+def parked_movers(path: Path, camera_s: np.ndarray, times: np.ndarray, seed: int,
+                  palette: Palette) -> tuple[tuple[MovingObject, ...], list[float]]:
+    """The movers of ``parked_then_moving``: a car parked every 40 m from 35 m on,
+    alternately in the right and the left parking lane, that pulls out into the nearest
+    lane of our direction (`pull_out_track`) when the camera is `PULL_OUT_DISTANCE` behind
+    it. Also the arc lengths [m] where they park (the static parked cars keep clear)."""
+    rng = rng_for(seed, 6)
+    movers: list[MovingObject] = []
+    spots = []
+    for n, s_parked in enumerate(np.arange(35.0, camera_s[-1] + 20.0, 40.0)):
+        side = 1 if n % 2 == 0 else -1
+        l_parked = ROAD_RIGHT - 0.5 * PARKING if side > 0 else ROAD_LEFT + 0.5 * PARKING
+        l_lane = 0.0 if side > 0 else -LANE
+        start = float(np.interp(s_parked - PULL_OUT_DISTANCE, camera_s, times, right=np.inf))
+        s, lateral, yaw = pull_out_track(times, start, float(s_parked), l_parked, l_lane)
+        car = box(*CAR_SIZE, palette.car, float(rng.uniform(0.3, 1.1)))
+        movers.append(mover(len(movers) + 1, car, track_poses(path, s, lateral, yaw)))
+        spots.append((float(s_parked), side))
+    return tuple(movers), spots
+
+
+def parked_cars_clear_of(path: Path, s_start: float, s_end: float, seed: int, palette: Palette,
+                         spots: list[tuple[float, int]]) -> list[Quads]:
+    """The street's parked cars (`parked_slots`, both sides) but those within 7 m of ``spots``
+    (arc length, side) where a mover parks."""
+    cars = []
+    for side in (1, -1):
+        taken = [s for s, spot_side in spots if spot_side == side]
+        for s, car in parked_slots(path, s_start, s_end, side, row_rng(seed, parked_row, side), palette):
+            if all(abs(s - other) > 7.0 for other in taken):
+                cars.append(car)
+    return cars
+
+
 # --- scenarios ---------------------------------------------------------------------------------
 
 
@@ -828,6 +1006,46 @@ def nearmiss_world(frames: int, seed: int) -> tuple[np.ndarray, Scene]:
     return camera_poses(path, s, period=120.0), make_scene(static, palette)
 
 
+def convoy_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``convoy``: the street of ``static`` driven at a varying
+    speed (`CONVOY_SPEED`) with a bus and a queue of cars going our way (`convoy_traffic`)."""
+    s = arc_lengths(times, convoy_speed)
+    s_end = s[-1] + VIEW_AHEAD
+    path = street_path(seed, -PATH_BEHIND, s_end + 10.0)
+    palette = textured_palette(seed)
+    rng = rng_for(seed, 7)
+    palette, bus = with_box_materials(palette, tx.bus_side(rng, (BUS_SIZE[2], BUS_SIZE[1])),
+                                      tx.truck_rear(rng, BUS_SIZE[:2]))
+    static = street(path, -25.0, s_end, seed, palette)
+    movers = convoy_traffic(path, s, times, seed, palette, bus)
+    return camera_poses(path, s, period=120.0), make_scene(static, palette, moving=movers)
+
+
+def crossing_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``crossing``: the street of ``static``, the camera stopping
+    at a junction every 16 s (`CROSSING_CYCLE`) while a crowd crosses (`crossing_crowd`)."""
+    s = arc_lengths(times, crossing_speed)
+    s_end = s[-1] + VIEW_AHEAD
+    path = street_path(seed, -PATH_BEHIND, s_end + 10.0)
+    palette = textured_palette(seed)
+    static = street(path, -25.0, s_end, seed, palette)
+    movers = crossing_crowd(path, s, times, seed, palette)
+    return camera_poses(path, s, period=120.0), make_scene(static, palette, moving=movers)
+
+
+def parked_then_moving_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
+    """Camera poses and scene of ``parked_then_moving``: the street of ``static`` at 8 m/s,
+    with cars that stay parked long enough to enter the map, then drive off (`parked_movers`)."""
+    s = STREET_STEP * np.arange(len(times))
+    s_end = s[-1] + VIEW_AHEAD
+    path = street_path(seed, -PATH_BEHIND, s_end + 10.0)
+    palette = textured_palette(seed)
+    movers, spots = parked_movers(path, s, times, seed, palette)
+    static = Quads.concat([street(path, -25.0, s_end, seed, palette, parked=False),
+                           *parked_cars_clear_of(path, -25.0, s_end, seed, palette, spots)])
+    return camera_poses(path, s, period=120.0), make_scene(static, palette, moving=movers)
+
+
 def street_world(name: str, times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
     """Camera poses and scene of ``static``, ``dynamic`` or ``lowtexture`` at frame
     ``times`` (N,) [s]: along a gently curved street."""
@@ -860,6 +1078,12 @@ def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int]
         poses, scene = two_lap_world(frames, seed)
     elif name == "nearmiss":
         poses, scene = nearmiss_world(frames, seed)
+    elif name == "convoy":
+        poses, scene = convoy_world(times, seed)
+    elif name == "crossing":
+        poses, scene = crossing_world(times, seed)
+    elif name == "parked_then_moving":
+        poses, scene = parked_then_moving_world(times, seed)
     else:
         poses, scene = street_world(name, times, seed)
     return Scenario(name=name, seed=seed, camera=camera, poses=poses, timestamps=times, scene=scene)

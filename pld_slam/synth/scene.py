@@ -279,6 +279,19 @@ class MovingObject:
     quads: Quads
     poses: np.ndarray
 
+    @property
+    def object_id(self) -> int:
+        """The id stamped on the object's quads."""
+        return int(self.quads.object_id[0])
+
+    def moves_at(self, frame: int) -> bool:
+        """Whether the object moves at ``frame``: its pose there differs from the frame
+        before's (frame 0: from frame 1's). A parked car that has not pulled out yet, or a
+        pedestrian waiting at the kerb, does not: the dynamic masks leave it out until it
+        moves, as the map should take it in until then."""
+        other = frame - 1 if frame > 0 else min(1, len(self.poses) - 1)
+        return not np.allclose(self.poses[frame], self.poses[other], rtol=0.0, atol=1e-9)
+
 
 @dataclass(frozen=True)
 class Transient:
@@ -340,6 +353,10 @@ class Scene:
         present = [] if self.transient is None else [self.transient.at(frame)]
         movers = [obj.quads.transformed(obj.poses[frame]) for obj in self.moving]
         return Quads.concat([self.static, *present, *movers])
+
+    def moving_ids_at(self, frame: int) -> np.ndarray:
+        """Object ids (M,) of the movers that move at ``frame`` (`MovingObject.moves_at`)."""
+        return np.array([obj.object_id for obj in self.moving if obj.moves_at(frame)], dtype=np.int32)
 
     def light_at(self, frame: int) -> np.ndarray:
         """(3,) unit vector towards the sun at ``frame``."""

@@ -357,6 +357,32 @@ def truck_side(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture
     return Texture(texels, size_m)
 
 
+def bus_side(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture:
+    """A bus flank ``size_m = (length, height)``: a row of framed windows, an advertising
+    panel of blotchy print under them, doors, a skirt line and two wheels. The windows and
+    the print give a bus alongside as many corners and edges as a facade (`convoy`)."""
+    shape = (512, 1024)
+    length, height = size_m
+    per_m_x, per_m_y = shape[1] / length, shape[0] / height
+    texels = 210.0 + grain(rng, shape, 2.0)
+    for left in np.arange(0.4 * per_m_x, shape[1] - 1.4 * per_m_x, 1.5 * per_m_x):
+        window(texels, rng, (left, 0.12 * shape[0], left + 1.3 * per_m_x, 0.45 * shape[0]), 5.0, 70.0)
+    panel = (1.0 * per_m_x, 0.52 * shape[0], shape[1] - 1.0 * per_m_x, 0.7 * shape[0])
+    texels[int(panel[1]) : int(panel[3]), int(panel[0]) : int(panel[2])] += periodic_noise(
+        rng, (int(panel[3]) - int(panel[1]), int(panel[2]) - int(panel[0])), ((4.0, 40.0), (12.0, 30.0)))
+    outline(texels, panel, 4.0, 60.0)
+    for door in (0.08, 0.55):
+        outline(texels, (door * shape[1], 0.12 * shape[0], door * shape[1] + 1.1 * per_m_x, 0.9 * shape[0]),
+                4.0, 50.0)
+    fill(texels, (0, 0.9 * shape[0], shape[1], 0.93 * shape[0]), 60.0)
+    wheel = 0.45 * per_m_y
+    for axle in (0.2, 0.8):
+        centre = (axle * shape[1], shape[0] - wheel)
+        disc(texels, centre, wheel, 30.0)
+        disc(texels, centre, 0.5 * wheel, 140.0)
+    return Texture(np.clip(texels, 0.0, 255.0), size_m)
+
+
 def car_end(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture:
     """A car front or rear ``size_m = (width, height)``: window, two lamps, grille, plate, bumper."""
     shape = (256, 256)

@@ -76,6 +76,7 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
+from pld_slam.tracking.static_world import static_world_solution
 
 
 class TrackingStatus(enum.Enum):
@@ -198,6 +199,7 @@ class Tracker:
         self._seen_dynamic_lines = np.zeros(0, dtype=bool)
         self._T_w_p = np.eye(4)
         self._velocity = np.eye(4)
+        self._prior_trusted = False
 
     def track(self, features: StereoFeatures, moving_mask: np.ndarray | None = None) -> TrackedFrame:
         """Estimate the pose of the frame whose stereo features are ``features``.
@@ -206,11 +208,7 @@ class Tracker:
         detectors when given: the features on it are the dynamic ones (`moving_masks`).
         """
         if self._reference is None:
-            self._set_reference(features, np.eye(4))
-            first_keyframe = KeyframeReason.FIRST if self._map is not None else None
-            return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
-                                point_dynamic=np.zeros(len(features.keypoints), dtype=bool),
-                                line_dynamic=np.zeros(len(features.lines), dtype=bool))
+            return self._first_frame(features, moving_mask)
         clock = StageClock()
         T_c_r_predicted = self._velocity @ inverse(self._T_w_p) @ self._T_w_r
         matched, widened = self._match(self._reference, features, T_c_r_predicted)
@@ -231,6 +229,8 @@ class Tracker:
         )
         clock.lap("pose")
         if moving_mask is None:
+            if self._config.dynamic.grid or self._config.dynamic.llg:
+                solution = self._static_world(solution, points, lines, T_c_r_predicted, trusted=not widened)
             labels = self._label_dynamic(self._reference, features, kept, solution)
         else:
             labels = _labels_from_mask(features, kept, moving_mask)
@@ -267,9 +267,24 @@ class Tracker:
         )
         self._update_reference(features, T_w_c, tracked, counts, kept, labels, landmarks, renew=recovered)
         status = _status(tracked, recovered)
+        self._prior_trusted = status is TrackingStatus.TRACKED
         keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
         return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
                             point_dynamic, line_dynamic)
+
+    def _first_frame(self, features: StereoFeatures, moving_mask: np.ndarray | None) -> TrackedFrame:
+        """The first frame: the world (``T_w_c = I``) and the first keyframe. Without a motion
+        nothing can be judged dynamic, but for the features on ``moving_mask`` when given."""
+        if moving_mask is None:
+            point_dynamic = np.zeros(len(features.keypoints), dtype=bool)
+            line_dynamic = np.zeros(len(features.lines), dtype=bool)
+        else:
+            point_dynamic, line_dynamic = features_on_mask(features.keypoints.uv, features.lines.endpoints, moving_mask)
+        self._set_reference(features, np.eye(4), _DynamicIndices(np.flatnonzero(point_dynamic),
+                                                                 np.flatnonzero(line_dynamic)))
+        first_keyframe = KeyframeReason.FIRST if self._map is not None else None
+        return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
+                            point_dynamic=point_dynamic, line_dynamic=line_dynamic)
 
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
@@ -451,7 +466,8 @@ class Tracker:
         self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
         self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)
         if dynamic is not None:
-            self._seen_dynamic_points[dynamic.points] = True
+            stereo = dynamic.points[dynamic.points < len(features.points)]  # the stereo points: the first keypoints
+            self._seen_dynamic_points[stereo] = True
             self._seen_dynamic_lines[dynamic.lines] = True
 
     def can_be_reference(self, features: StereoFeatures) -> bool:
@@ -550,6 +566,18 @@ class Tracker:
         predicted, _ = predict_segments(self._camera, T_c_r, reference.lines.endpoints_c[matches.previous])
         seen = self._seen_dynamic_lines[matches.previous]
         return dynamic_llg(predicted, current.lines.endpoints[matches.current], self._config.dynamic, seen)
+
+    def _static_world(
+        self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations,
+        T_c_r_predicted: np.ndarray, trusted: bool,
+    ) -> PoseOnlyResult:
+        """``solution``, or the frame solved for the static world's motion where two coherent motions
+        compete (`static_world`); the motion model is trusted when the last frame was tracked
+        normally and ``trusted`` (this frame's guided search did not have to widen)."""
+        if not solution.success:
+            return solution
+        return static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
+                                     self._prior_trusted and trusted, self._pose_options, self._config)
 
     def _without_dynamic(
         self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
