@@ -602,6 +602,15 @@ def test_generic_groundtruth_is_turned_into_the_rectified_left_camera(tmp_path):
     assert np.allclose(sequence.groundtruth.poses[:, :3, :3], np.eye(3))
 
 
+def test_generic_groundtruth_of_another_frame_is_moved_to_the_camera_with_T_gt_left(tmp_path):
+    """Body poses stepping along the body's x axis: the camera, looking along it, steps along its z."""
+    T_body_left = make_pose(B_FROM_CAM0, np.array([0.2, 0.0, 0.1]))
+    folder = make_generic(tmp_path, rectified_calibration() | {"T_gt_left": T_body_left.tolist()}, n=3)
+    write_lines(folder / "groundtruth.txt", [f"{0.1 * i:.3f} {0.5 * i} 0 0 0 0 0 1" for i in range(3)])
+    groundtruth = open_sequence(folder).groundtruth
+    np.testing.assert_allclose(groundtruth.positions, [[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0]], atol=1e-12)
+
+
 def test_generic_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp_path):
     folder = make_generic(tmp_path, RAW_RIG, n=2, size=(RAW_WIDTH, RAW_HEIGHT))
     (folder / "left" / "0000.png").write_bytes(b"")
@@ -641,6 +650,10 @@ def without(mapping: dict, dotted_key: str) -> dict:
         (rectified_calibration() | {"t": [BASELINE, 0.0, 0.0]}, "the right camera is not to the right"),
         (rectified_calibration() | {"rectified": "yes"}, "'rectified' must be true or false"),
         (rectified_calibration() | {"fps": -5}, "'fps' must be positive"),
+        (rectified_calibration() | {"T_gt_left": np.ones((4, 4)).tolist()},
+         "'T_gt_left' must end with the row 0 0 0 1"),
+        (rectified_calibration() | {"T_gt_left": np.diag([1.0, 1.0, -1.0, 1.0]).tolist()},
+         "'T_gt_left' is not a rotation matrix"),
         (rectified_calibration() | {"image_size": [32.5, 24]},
          "'image_size' must be two positive whole numbers"),
         (rectified_calibration() | {"left": {"K": "fx fy"}}, "'left.K' is not a list of numbers"),

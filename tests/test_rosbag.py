@@ -361,6 +361,9 @@ def test_four_image_topics_need_the_pair_named(tmp_path):
         (with_imu, BagOptions(groundtruth_topic="/imu0"),
          ": ground-truth topic /imu0: it is sensor_msgs/msg/Imu, not one of geometry_msgs/msg/PoseStamped, "
          "geometry_msgs/msg/TransformStamped, nav_msgs/msg/Odometry"),
+        (lambda kind: stereo_messages(kind, topics=("/cam/image_raw", "/cam/image_raw/compressed")), BagOptions(),
+         ": the image topics /cam/image_raw, /cam/image_raw/compressed are one camera's (/cam/camera_info), "
+         "not a stereo pair"),
         (with_imu, BagOptions(calibration=Path("/nowhere/calib.yaml")),
          "/nowhere/calib.yaml: YAML calibration file not found"),
     ],

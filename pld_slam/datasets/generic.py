@@ -134,7 +134,7 @@ def load(folder: Path) -> StereoSequence:
     folder = folder.resolve()
     left_paths, right_paths = paired_image_folders(folder / "left", folder / "right", IMAGE_SUFFIXES)
     rig = read_rig_calibration(folder / "calib.yaml")
-    timestamps, frame_rate = _frame_times(folder, len(left_paths), rig.fps)
+    timestamps, frame_rate = _times_and_rate(folder, len(left_paths), rig.fps)
     return StereoSequence(
         name=folder.name,
         layout=LAYOUT,
@@ -176,7 +176,7 @@ def _fps(calibration: Calibration) -> float | None:
     return fps
 
 
-def _frame_times(folder: Path, n_frames: int, fps: float | None) -> tuple[np.ndarray, FrameRate]:
+def _times_and_rate(folder: Path, n_frames: int, fps: float | None) -> tuple[np.ndarray, FrameRate]:
     """Frame times (N,) [s] and the frame rate (module docstring: Times, Frame rate)."""
     times_path = folder / "times.txt"
     nominal = None if fps is None else FrameRate(fps, "fps of calib.yaml")

@@ -5,7 +5,8 @@ Read with the ``rosbags`` package (``AnyReader``), which needs no ROS installati
 - Image topics: the stereo pair is two topics of ``sensor_msgs/Image`` or
   ``sensor_msgs/CompressedImage``. With exactly two in the bag, the first in name order
   is the left camera (``/cam0`` before ``/cam1``, ``.../left/...`` before
-  ``.../right/...``); with more (a raw and a rectified stream per camera, say),
+  ``.../right/...``), unless both share one ``camera_info`` (two streams of one camera,
+  an error); with more (a raw and a rectified stream per camera, say),
   `BagOptions` ``left_topic`` and ``right_topic`` (``--left-topic``, ``--right-topic``)
   name them, and a named topic that is missing or not an image raises.
 - Pairing: each left image is paired with the right image whose header stamp is nearest,
@@ -261,6 +262,11 @@ def _image_topics(reader: AnyReader, bag: Path, options: BagOptions) -> tuple[st
             raise DatasetError(
                 f"{bag}: {len(images)} image topics ({listed}); "
                 "name the stereo pair with --left-topic and --right-topic"
+            )
+        if camera_info_topic(images[0]) == camera_info_topic(images[1]):  # a raw and a compressed stream, say
+            raise DatasetError(
+                f"{bag}: the image topics {listed} are one camera's ({camera_info_topic(images[0])}), "
+                "not a stereo pair"
             )
         return images[0], images[1]
     if None in named:
