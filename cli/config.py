@@ -27,8 +27,8 @@ set_option = click.option(
 @click.command("config")
 @config_files_option
 @set_option
-@click.option("--sequence", "sequence_dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
-              default=None, help="Print the config of a run on this sequence folder (its dataset family included).")
+@click.option("--sequence", "sequence_dir", type=click.Path(exists=True, path_type=Path), default=None,
+              help="Print the config of a run on this sequence folder or bag (its dataset family included).")
 def config_command(config_paths: tuple[Path, ...], overrides: tuple[str, ...], sequence_dir: Path | None) -> None:
     """Print the effective configuration as YAML (defaults, then files, then --set).
 

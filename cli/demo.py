@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from pld_slam.datasets import open_sequence
 from pld_slam.io.run_output import create_output_folder
 from pld_slam.synth import SCENARIOS, write_sequence
 from pld_slam_cli.config import set_option
@@ -32,5 +33,5 @@ def demo_command(out: Path, scenario: str, frames: int, seed: int, overrides) ->
     create_output_folder(out)  # before rendering: a bad --out is a one-line error, not lost work
     click.echo(f"writing the sequence into {out / 'sequence'}/ and the run into {out / 'run'}/")
     write_sequence(out / "sequence", scenario, n_frames=frames, seed=seed, progress=True)
-    summary = run_and_write(out / "sequence", out / "run", (), overrides, None)
+    summary = run_and_write(open_sequence(out / "sequence"), out / "run", (), overrides, None)
     click.echo(f"{format_run_table(summary)}\nwrote {out / 'run'}/")

@@ -1,4 +1,4 @@
-"""``pld-slam run``: the whole pipeline on a sequence folder, writing trajectories and a summary."""
+"""``pld-slam run``: the whole pipeline on a sequence folder or ROS bag, writing trajectories and a summary."""
 
 import json
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from pld_slam.datasets import StereoFrame, StereoSequence, open_sequence
+from pld_slam.datasets import BagOptions, StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.run_output import (
@@ -43,6 +43,12 @@ def skipped_frame_rows(skipped: list[dict]) -> list[tuple[str, str]]:
     return rows
 
 
+def frame_rate_text(frame_rate: dict) -> str:
+    """A summary's ``frame_rate`` in words: ``10 Hz, KITTI nominal rate``."""
+    hz = "unknown rate" if frame_rate["hz"] is None else f"{frame_rate['hz']:.4g} Hz"
+    return f"{hz}, {frame_rate['source']}"
+
+
 def format_run_table(summary: dict) -> str:
     """Frames, failures, accuracy and per-stage speed of a run summary as aligned text.
 
@@ -66,7 +72,8 @@ def format_run_table(summary: dict) -> str:
          + " / " + number(summary["rpe_rot_rmse_deg"], "{:.4f}", "deg")),
         *([("", coverage)] if coverage else []),
         ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")
-         + " (sequence time / wall time; above 1 is faster than real time)"),
+         + f" (sequence time at {frame_rate_text(summary['frame_rate'])} / wall time;"
+         " above 1 is faster than real time)"),
         ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
     ]
     mapping = summary["mapping"]
@@ -122,13 +129,14 @@ def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tup
 
 
 def run_and_write(
-    sequence_dir: Path, out: Path, config_paths, overrides, max_frames: int | None, save_dynamic: Path | None = None,
-    formats: tuple[str, ...] = DEFAULT_FORMATS,
+    sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
+    save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
 ) -> dict:
-    """Run the pipeline and write its files; on Ctrl-C or an error the files still get written.
+    """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
 
     The configuration is `load_run_config`'s: defaults, the dataset family's file, then
-    ``config_paths`` and ``overrides``. ``formats`` are the trajectory files' formats.
+    ``config_paths`` and ``overrides``; its ``dataset.scale`` scales the sequence
+    (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats.
 
     The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
     so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
@@ -139,8 +147,8 @@ def run_and_write(
     the final trajectory files are written. Ctrl-C during the frames raises
     `RunInterrupted` once the files are written, naming them (`interrupted_message`).
     """
-    sequence = open_sequence(sequence_dir)
     run_config = load_run_config(sequence, config_paths, overrides)
+    sequence = sequence.scaled(run_config.config.dataset.scale)
     observer = None if save_dynamic is None else overlay_writer(save_dynamic, sequence)
     partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
     system = System(sequence, run_config.config, observer,
@@ -175,9 +183,17 @@ def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[P
 
 
 @click.command("run")
-@click.argument("sequence_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("sequence_path", metavar="SEQUENCE", type=click.Path(exists=True, path_type=Path))
 @config_files_option
 @set_option
+@click.option("--scale", type=click.FloatRange(0.05, 1.0), default=None,
+              help="Resize frames and intrinsics by this factor on load (= --set dataset.scale=S).")
+@click.option("--left-topic", default=None, help="ROS bag: the left image topic (when the bag has other images).")
+@click.option("--right-topic", default=None, help="ROS bag: the right image topic.")
+@click.option("--gt-topic", default=None,
+              help="ROS bag: ground-truth poses (PoseStamped, TransformStamped or Odometry).")
+@click.option("--calib", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="ROS bag: a calib.yaml (generic layout's schema) instead of the bag's CameraInfo.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Output folder [default: runs/<sequence name>].")
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Process only the first N frames.")
@@ -186,12 +202,15 @@ def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[P
 @click.option("--json", "as_json", is_flag=True, help="Print summary.json instead of a table.")
 @click.option("--save-dynamic", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each frame's features, coloured static (green) / dynamic (red), as PNGs here.")
-def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, max_frames: int | None,
-                formats: tuple[str, ...], as_json: bool, save_dynamic: Path | None) -> None:
-    """Run PLD-SLAM on the stereo sequence in SEQUENCE_DIR (KITTI, KITTI raw, EuRoC or generic).
+def run_command(sequence_path: Path, config_paths, overrides, scale: float | None, left_topic: str | None,
+                right_topic: str | None, gt_topic: str | None, calib: Path | None, out: Path | None,
+                max_frames: int | None, formats: tuple[str, ...], as_json: bool, save_dynamic: Path | None) -> None:
+    """Run PLD-SLAM on the stereo sequence SEQUENCE: a folder (KITTI, KITTI raw, EuRoC,
+    generic, Argoverse) or a ROS bag (a ROS 1 .bag file or a ROS 2 bag folder).
 
-    The dataset family's config (kitti.yaml, euroc.yaml or synthetic.yaml, from the
-    detected layout) is applied first, then --config files, then --set.
+    The dataset family's config (kitti.yaml, euroc.yaml, argoverse.yaml or
+    synthetic.yaml, from the detected layout) is applied first, then --config files,
+    then --set, then --scale.
 
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
     first camera; --formats adds trajectory.euroc.csv or leaves one out), summary.json
@@ -202,6 +221,8 @@ def run_command(sequence_dir: Path, config_paths, overrides, out: Path | None, m
     killed, deleted once the final files are written). The files of an earlier run in
     the output folder are deleted first; other files there are kept.
     """
-    out = out if out is not None else Path("runs") / open_sequence(sequence_dir).name
-    summary = run_and_write(sequence_dir, out, config_paths, overrides, max_frames, save_dynamic, formats)
+    sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))
+    overrides = overrides if scale is None else (*overrides, f"dataset.scale={scale}")
+    out = out if out is not None else Path("runs") / sequence.name
+    summary = run_and_write(sequence, out, config_paths, overrides, max_frames, save_dynamic, formats)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")

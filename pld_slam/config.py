@@ -38,6 +38,16 @@ class SystemConfig:
 
 
 @dataclass(frozen=True)
+class DatasetConfig:
+    """How frames are delivered from the sequence (`pld_slam.datasets.StereoSequence.scaled`)."""
+
+    scale: float = _param(
+        1.0, "resize factor of every frame and of the camera intrinsics (baseline kept); 0.5 halves each side",
+        0.05, 1.0,
+    )
+
+
+@dataclass(frozen=True)
 class PointsConfig:
     """ORB point features: detection, bucketing over the image, stereo matching."""
 
@@ -330,6 +340,7 @@ class Config:
     """The whole configuration: one field per YAML section."""
 
     system: SystemConfig = field(default_factory=SystemConfig)
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
     points: PointsConfig = field(default_factory=PointsConfig)
     lines: LinesConfig = field(default_factory=LinesConfig)
     filters: FiltersConfig = field(default_factory=FiltersConfig)

@@ -6,9 +6,11 @@ from, each layer laid over the one before:
 1. the defaults (the dataclasses of `pld_slam.config`, equal to ``configs/default.yaml``);
 2. the file of the sequence's dataset family (`dataset_family`), chosen from the detected
    layout: ``kitti.yaml`` for KITTI odometry and KITTI raw, ``euroc.yaml`` for EuRoC,
-   ``synthetic.yaml`` for a sequence written by ``pld-slam synth`` (KITTI odometry layout
-   with a ``synth.json`` in its root), none for the generic layout. The family files hold
-   only what differs from the defaults; they ship with the package as `pld_slam.configs`;
+   ``argoverse.yaml`` for Argoverse, ``synthetic.yaml`` for a sequence written by
+   ``pld-slam synth`` (KITTI odometry layout with a ``synth.json`` in its root), none for
+   the generic layout and ROS bags (a bag says nothing of the camera it holds). The
+   family files hold only what differs from the defaults; they ship with the package as
+   `pld_slam.configs`;
 3. the user's ``--config`` files, in order;
 4. the ``--set section.key=value`` overrides, in order.
 
@@ -27,10 +29,23 @@ from pld_slam.datasets import StereoSequence
 from pld_slam.errors import ConfigError
 from pld_slam.synth.writer import METADATA as SYNTH_METADATA
 
-FAMILY_FILES = {"kitti": "kitti.yaml", "euroc": "euroc.yaml", "synthetic": "synthetic.yaml", "generic": None}
+FAMILY_FILES = {
+    "kitti": "kitti.yaml",
+    "euroc": "euroc.yaml",
+    "argoverse": "argoverse.yaml",
+    "synthetic": "synthetic.yaml",
+    "generic": None,
+}
 """Each dataset family and its packaged config file (None: the defaults as they are)."""
 
-_LAYOUT_FAMILIES = {"kitti_odometry": "kitti", "kitti_raw": "kitti", "euroc": "euroc", "generic": "generic"}
+_LAYOUT_FAMILIES = {
+    "kitti_odometry": "kitti",
+    "kitti_raw": "kitti",
+    "euroc": "euroc",
+    "argoverse": "argoverse",
+    "generic": "generic",
+    "rosbag": "generic",
+}
 
 
 @dataclass(frozen=True)
@@ -51,7 +66,7 @@ class RunConfig:
 
 
 def dataset_family(sequence: StereoSequence) -> str:
-    """The dataset family of ``sequence``: ``kitti``, ``euroc``, ``synthetic`` or ``generic``.
+    """The dataset family of ``sequence``: ``kitti``, ``euroc``, ``argoverse``, ``synthetic`` or ``generic``.
 
     Parameters
     ----------

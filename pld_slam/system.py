@@ -143,6 +143,11 @@ class System:
                  record_observer: RecordObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
+        if sequence.scale != config.dataset.scale:
+            raise ConfigError(
+                f"dataset.scale is {config.dataset.scale:g} but {sequence.root} is scaled by {sequence.scale:g}; "
+                "run on sequence.scaled(config.dataset.scale)"
+            )
         if config.dynamic.from_masks and sequence.dynamic_mask_paths is None:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
@@ -190,7 +195,7 @@ class System:
         extracted = time.perf_counter()
         if not self._started:
             if not self.tracker.can_be_reference(features):
-                reason = (f"{self.sequence.left_paths[index]}: too few features to start the trajectory on "
+                reason = (f"{self.sequence.frames.describe(index)}: too few features to start the trajectory on "
                           f"({len(features.points)} stereo points, {len(features.lines)} lines)")
                 return self._before_first_usable(index, timestamp, reason, start)
             self._started = True

@@ -323,8 +323,8 @@ def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_
     assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
                                 "but the calibration is for 160x120")
     assert f"{blank}evaluated on 5 of 6 frames" in table
-    assert any(re.fullmatch(r"real-time factor +[0-9.]+ \(sequence time / wall time; above 1 is faster than "
-                            r"real time\)", line) for line in table)
+    assert any(re.fullmatch(r"real-time factor +[0-9.]+ \(sequence time at 10 Hz, frame_rate of synth.json "
+                            r"/ wall time; above 1 is faster than real time\)", line) for line in table)
     summary = json.loads((out / "summary.json").read_text())
     assert [frame["index"] for frame in summary["skipped_frames"]] == [2, 4] and summary["n_matched"] == 5
 

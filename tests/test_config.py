@@ -32,7 +32,7 @@ def test_default_yaml_lists_every_parameter_at_its_default():
             assert f"  {spec.name}:" in text, f"{section.name}.{spec.name} missing from default.yaml"
 
 
-@pytest.mark.parametrize("name", ["kitti.yaml", "euroc.yaml", "synthetic.yaml"])
+@pytest.mark.parametrize("name", ["kitti.yaml", "euroc.yaml", "argoverse.yaml", "synthetic.yaml"])
 def test_dataset_family_files_load(name):
     config = load_config([CONFIGS / "default.yaml", CONFIGS / name])
     assert config != Config()

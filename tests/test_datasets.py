@@ -248,7 +248,7 @@ def test_euroc_static_extract_is_rectified_and_still(data_dir):
     assert (sequence.name, sequence.layout, len(sequence)) == ("euroc_V1_01_easy_static", "euroc", 40)
     assert sequence.camera.baseline == pytest.approx(0.110, abs=2e-3)
     frame = sequence[0]
-    raw = cv2.imread(str(sequence.left_paths[0]), cv2.IMREAD_GRAYSCALE)
+    raw = cv2.imread(str(sequence.frames.left_paths[0]), cv2.IMREAD_GRAYSCALE)
     assert frame.left.shape == frame.right.shape == raw.shape == (480, 752)
     assert median_row_offset(frame.left, frame.right) < 0.5
     groundtruth = sequence.groundtruth
@@ -281,7 +281,7 @@ def test_each_generated_layout_is_detected(tmp_path):
 
 
 def test_missing_or_empty_folder_raises(tmp_path):
-    assert "no such folder" in open_error(tmp_path / "nowhere")
+    assert "no such file or folder" in open_error(tmp_path / "nowhere")
     (tmp_path / "file.txt").write_text("x")
     assert "not a folder" in open_error(tmp_path / "file.txt")
     (tmp_path / "empty").mkdir()
@@ -602,6 +602,15 @@ def test_generic_groundtruth_is_turned_into_the_rectified_left_camera(tmp_path):
     assert np.allclose(sequence.groundtruth.poses[:, :3, :3], np.eye(3))
 
 
+def test_generic_groundtruth_of_another_frame_is_moved_to_the_camera_with_T_gt_left(tmp_path):
+    """Body poses stepping along the body's x axis: the camera, looking along it, steps along its z."""
+    T_body_left = make_pose(B_FROM_CAM0, np.array([0.2, 0.0, 0.1]))
+    folder = make_generic(tmp_path, rectified_calibration() | {"T_gt_left": T_body_left.tolist()}, n=3)
+    write_lines(folder / "groundtruth.txt", [f"{0.1 * i:.3f} {0.5 * i} 0 0 0 0 0 1" for i in range(3)])
+    groundtruth = open_sequence(folder).groundtruth
+    np.testing.assert_allclose(groundtruth.positions, [[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0]], atol=1e-12)
+
+
 def test_generic_opening_reads_no_image_and_a_corrupt_frame_raises_when_read(tmp_path):
     folder = make_generic(tmp_path, RAW_RIG, n=2, size=(RAW_WIDTH, RAW_HEIGHT))
     (folder / "left" / "0000.png").write_bytes(b"")
@@ -641,6 +650,10 @@ def without(mapping: dict, dotted_key: str) -> dict:
         (rectified_calibration() | {"t": [BASELINE, 0.0, 0.0]}, "the right camera is not to the right"),
         (rectified_calibration() | {"rectified": "yes"}, "'rectified' must be true or false"),
         (rectified_calibration() | {"fps": -5}, "'fps' must be positive"),
+        (rectified_calibration() | {"T_gt_left": np.ones((4, 4)).tolist()},
+         "'T_gt_left' must end with the row 0 0 0 1"),
+        (rectified_calibration() | {"T_gt_left": np.diag([1.0, 1.0, -1.0, 1.0]).tolist()},
+         "'T_gt_left' is not a rotation matrix"),
         (rectified_calibration() | {"image_size": [32.5, 24]},
          "'image_size' must be two positive whole numbers"),
         (rectified_calibration() | {"left": {"K": "fx fy"}}, "'left.K' is not a list of numbers"),
@@ -709,3 +722,81 @@ def test_euroc_pairs_images_by_timestamp(tmp_path):
     message = open_error(folder)
     assert "cam1/data/1403715273312142976.png: no image with the same timestamp in " in message
     assert message.endswith("cam0/data.csv")
+
+
+# ---------------------------------------------------------------- frame rate and scaling
+
+
+def test_each_folder_layout_reports_its_nominal_frame_rate(tmp_path):
+    rates = {
+        "kitti_odometry": open_sequence(make_kitti_odometry(tmp_path / "a")).frame_rate,
+        "kitti_raw": open_sequence(make_kitti_raw(tmp_path / "b")).frame_rate,
+        "euroc": open_sequence(make_euroc(tmp_path / "c")).frame_rate,
+    }
+    assert {layout: (rate.hz, rate.source) for layout, rate in rates.items()} == {
+        "kitti_odometry": (10.0, "KITTI nominal rate"),
+        "kitti_raw": (10.0, "KITTI nominal rate"),
+        "euroc": (20.0, "EuRoC nominal rate"),
+    }
+
+
+def test_a_synthetic_sequence_takes_its_rate_from_synth_json(tmp_path):
+    folder = make_kitti_odometry(tmp_path)
+    (folder / "synth.json").write_text('{"scenario": "static", "frame_rate": 7.5}')
+    sequence = open_sequence(folder)
+    assert (sequence.name, sequence.frame_rate.hz, sequence.frame_rate.source) == (
+        "synth_static", 7.5, "frame_rate of synth.json")
+
+
+@pytest.mark.parametrize(
+    "fps, times, expected",
+    [
+        (12, None, (12.0, "fps of calib.yaml")),
+        (12, ["0.0", "0.5", "1.0"], (12.0, "fps of calib.yaml")),
+        (None, ["0.0", "0.5", "1.25"], (1 / 0.625, "median step of times.txt")),
+        (None, None, (10.0, "default rate (no fps in calib.yaml, no times.txt)")),
+    ],
+)
+def test_generic_rate_is_fps_else_the_median_time_step_else_10_hz(tmp_path, fps, times, expected):
+    calibration = rectified_calibration() | ({} if fps is None else {"fps": fps})
+    folder = make_generic(tmp_path, calibration, n=3)
+    if times is not None:
+        write_lines(folder / "times.txt", times)
+    rate = open_sequence(folder).frame_rate
+    assert (rate.hz, rate.source) == pytest.approx(expected)
+
+
+def test_every_second_frame_runs_at_half_the_rate(tmp_path):
+    part = open_sequence(make_kitti_odometry(tmp_path, n=5)).subsequence(1, 2)
+    assert (part.frame_rate.hz, part.frame_rate.source) == (5.0, "KITTI nominal rate, every 2 frames")
+    assert len(part) == 2 and part.frames.left_paths[1].name == "000003.png"
+
+
+def test_scaled_frames_and_camera_agree_where_a_point_projects(tmp_path):
+    """Blobs at known 3D points land where the scaled camera projects them, to a tenth of a pixel."""
+    calibration = rectified_calibration() | {"image_size": [RAW_WIDTH, RAW_HEIGHT],
+                                             "left": {"K": RAW_RIG["left"]["K"]}}
+    folder = make_generic(tmp_path, calibration, n=1, size=(RAW_WIDTH, RAW_HEIGHT))
+    sequence = open_sequence(folder)
+    points = np.array([[-0.6, -0.3, 3.0], [0.0, 0.2, 4.0], [0.7, 0.1, 5.0]])
+    full = sequence.camera.project_stereo(points)
+    cv2.imwrite(str(folder / "left" / "0000.png"), gaussian_blobs(full[:, :2], sigma=3.0))
+    cv2.imwrite(str(folder / "right" / "0000.png"), gaussian_blobs(full[:, [2, 1]], sigma=3.0))
+    half = sequence.scaled(0.5)
+    assert (half.scale, half.camera.size, half.camera.baseline) == (0.5, (160, 120), sequence.camera.baseline)
+    frame = half[0]
+    assert frame.left.shape == frame.right.shape == (120, 160)
+    expected = half.camera.project_stereo(points)
+    np.testing.assert_allclose(blob_centres(frame.left), expected[:, :2], atol=0.1)
+    np.testing.assert_allclose(blob_centres(frame.right)[:, 0], expected[:, 2], atol=0.1)
+    assert half.scaled(0.5).camera.size == (80, 60) and half.scaled(0.5).scale == 0.25
+    assert sequence.scaled(1.0) is sequence
+    with pytest.raises(DatasetError, match="scale must be in \\(0, 1\\], got 1.5"):
+        sequence.scaled(1.5)
+
+
+def test_scaled_dynamic_masks_follow_the_frames(tmp_path):
+    folder = make_kitti_odometry(tmp_path, n=2)
+    write_images(folder / "dynamic_masks", ["000000.png", "000001.png"])
+    half = open_sequence(folder).scaled(0.5)
+    assert half.dynamic_mask(1).shape == half[1].left.shape == (HEIGHT // 2, WIDTH // 2)

@@ -54,7 +54,7 @@ def test_the_sub_sequence_keeps_the_chosen_frames_and_rebases_the_ground_truth(s
     part = street.subsequence(12, 2)
     assert len(part) == (N_FRAMES - 12 + 1) // 2
     assert list(part.timestamps) == list(street.timestamps[12::2])
-    assert part.left_paths == street.left_paths[12::2]
+    assert part.frames.left_paths == street.frames.left_paths[12::2]
     expected = inverse(street.groundtruth.poses[12]) @ street.groundtruth.poses[12:]  # every pose from then on
     np.testing.assert_allclose(part.groundtruth.poses, expected, atol=1e-12)
     np.testing.assert_allclose(part.groundtruth.poses[0], np.eye(4), atol=1e-12)

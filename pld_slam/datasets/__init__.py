@@ -1,12 +1,14 @@
-"""Stereo datasets read into one `StereoSequence`, the layout detected from the folder.
+"""Stereo datasets read into one `StereoSequence`, the layout detected from the path.
 
-`open_sequence` recognises, in this order:
+`open_sequence` recognises a ROS bag (`rosbag`: a ROS 1 ``.bag`` file, or a ROS 2 bag
+folder with ``metadata.yaml``), else, in this order, the folder layouts:
 
 - ``kitti_odometry`` (`kitti_odometry`): ``image_0/``, ``image_1/``, ``calib.txt``,
   ``times.txt``; also what ``pld-slam synth`` writes;
 - ``kitti_raw`` (`kitti_raw`): a ``DATE_drive_NNNN_sync`` folder with ``image_00/``;
 - ``euroc`` (`euroc`): an EuRoC ASL sequence (``mav0/``) or its ``mav0`` folder;
-- ``generic`` (`generic`): ``left/``, ``right/``, ``calib.yaml`` (schema in its docstring).
+- ``generic`` (`generic`): ``left/``, ``right/``, ``calib.yaml`` (schema in its docstring);
+- ``argoverse`` (`argoverse`): an Argoverse 1.1 stereo log (``stereo_front_left_rect/``).
 
 Every problem with the input is a one-line `DatasetError` naming the file or folder.
 Malformed ground-truth rows are the exception to the type: the trajectory readers of
@@ -17,39 +19,48 @@ CLI reports, and wrapping it would only repeat the message.
 
 from pathlib import Path
 
-from pld_slam.datasets import euroc, generic, kitti_odometry, kitti_raw
-from pld_slam.datasets.base import StereoFrame, StereoSequence
+from pld_slam.datasets import argoverse, euroc, generic, kitti_odometry, kitti_raw, rosbag
+from pld_slam.datasets.base import FrameRate, StereoFrame, StereoSequence
+from pld_slam.datasets.rosbag import BagOptions
 from pld_slam.errors import DatasetError
 
-LAYOUTS = (kitti_odometry, kitti_raw, euroc, generic)
-"""The layout modules, tried in this order; each has ``LAYOUT`` (its name), ``EXPECTED``
-(its folder structure, for error messages), ``matches(folder)`` and ``load(folder)``."""
+LAYOUTS = (kitti_odometry, kitti_raw, euroc, generic, argoverse)
+"""The folder layout modules, tried in this order; each has ``LAYOUT`` (its name),
+``EXPECTED`` (its folder structure, for error messages), ``matches(folder)`` and
+``load(folder)``. ROS bags (`rosbag`) are told apart before them, and take `BagOptions`."""
 
 
-def open_sequence(path: str | Path) -> StereoSequence:
-    """Open the stereo sequence in folder ``path``, detecting its layout.
+def open_sequence(path: str | Path, bag_options: BagOptions = BagOptions()) -> StereoSequence:
+    """Open the stereo sequence at ``path`` (a folder, or a ROS bag), detecting its layout.
 
-    Opening lists files and reads calibration, times and ground truth; images are read
-    (and rectified where needed) only when a frame is asked for.
+    Opening lists files (or, for a bag, the stamps of its image messages) and reads
+    calibration, times and ground truth; images are read (and rectified where needed)
+    only when a frame is asked for. ``bag_options`` (topics, calibration file) apply to
+    ROS bags only.
 
     Raises
     ------
     DatasetError
-        The folder does not exist, is empty or matches no layout (the message lists the
-        layouts expected), or the files of its layout are missing or malformed.
+        The path does not exist, is empty or matches no layout (the message lists the
+        layouts expected), ``bag_options`` are given for what is not a bag, or the files
+        of its layout are missing or malformed.
     """
-    folder = Path(path).expanduser()
-    if not folder.exists():
-        raise DatasetError(f"{folder}: no such folder")
-    if not folder.is_dir():
-        raise DatasetError(f"{folder}: not a folder; give the sequence folder")
-    if not any(folder.iterdir()):
-        raise DatasetError(f"{folder}: the folder is empty")
+    source = Path(path).expanduser()
+    if not source.exists():
+        raise DatasetError(f"{source}: no such file or folder")
+    if rosbag.matches(source):
+        return rosbag.load(source, bag_options)
+    if bag_options != BagOptions():
+        raise DatasetError(f"{source}: not a ROS bag; topics and --calib apply to bags only")
+    if not source.is_dir():
+        raise DatasetError(f"{source}: not a folder or a ROS 1 .bag file; give the sequence folder or the bag")
+    if not any(source.iterdir()):
+        raise DatasetError(f"{source}: the folder is empty")
     for layout in LAYOUTS:
-        if layout.matches(folder):
-            return layout.load(folder)
-    expected = "; ".join(layout.EXPECTED for layout in LAYOUTS)
-    raise DatasetError(f"{folder}: unknown dataset layout; expected one of: {expected}")
+        if layout.matches(source):
+            return layout.load(source)
+    expected = "; ".join(layout.EXPECTED for layout in (*LAYOUTS, rosbag))
+    raise DatasetError(f"{source}: unknown dataset layout; expected one of: {expected}")
 
 
-__all__ = ["LAYOUTS", "StereoFrame", "StereoSequence", "open_sequence"]
+__all__ = ["LAYOUTS", "BagOptions", "FrameRate", "StereoFrame", "StereoSequence", "open_sequence"]

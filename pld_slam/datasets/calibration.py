@@ -6,12 +6,14 @@ Two on-disk forms are read into the same `Calibration`:
   values kept as text until asked for, so non-numeric entries such as ``calib_time``
   cost nothing;
 - YAML files (EuRoC ``sensor.yaml``, the generic ``calib.yaml``), including OpenCV's
-  ``%YAML:1.0`` first line, which PyYAML rejects and we drop.
+  ``%YAML:1.0`` first line, which PyYAML rejects and we drop;
+- JSON files (Argoverse's calibration and pose files).
 
 Every problem is a one-line `DatasetError` naming the file and, where there is one, the
 key: a missing file, a missing key, a value that is not numbers or has the wrong count.
 """
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,8 +122,20 @@ def read_yaml_calibration(path: Path) -> Calibration:
     return Calibration(path, entries)
 
 
+def read_json_calibration(path: Path, what: str = "JSON calibration file") -> Calibration:
+    """Read a JSON file whose top level is an object; ``what`` names the file in a not-found error."""
+    _require_file(path, what)
+    try:
+        entries = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise DatasetError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(entries, Mapping):
+        raise DatasetError(f"{path}: expected a JSON object of keys to values")
+    return Calibration(path, entries)
+
+
 def stereo_camera_from_projections(
-    P_left: np.ndarray, P_right: np.ndarray, width: int, height: int, source: Path
+    P_left: np.ndarray, P_right: np.ndarray, width: int, height: int, source: Path | str
 ) -> StereoCamera:
     """The rectified `StereoCamera` of the two (3, 4) projection matrices of a rectified pair.
 

@@ -6,7 +6,8 @@ Either the sequence folder or its ``mav0`` folder may be given.
   cam0 (left) and cam1 (right) rows are paired by equal timestamps
   (`pld_slam.datasets.files.paired_images`); an image whose timestamp the other camera's
   list lacks raises `DatasetError` naming that image and the other list.
-  Frame times are the nanosecond timestamps divided by 1e9 [s].
+  Frame times are the nanosecond timestamps divided by 1e9 [s]; the frame rate is
+  EuRoC's nominal 20 Hz (`FRAME_RATE`).
 - Camera: the raw images are distorted; they are rectified as they are read (see
   `pld_slam.datasets.rectify`, ``alpha = 0``) from the two ``sensor.yaml`` files:
   ``intrinsics`` (fu fv cu cv), ``distortion_coefficients`` (radial-tangential k1 k2 p1 p2),
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import read_yaml_calibration
 from pld_slam.datasets.files import groundtruth_at_frames, paired_images
 from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
@@ -37,6 +38,9 @@ from pld_slam.trajectory import Trajectory
 
 LAYOUT = "euroc"
 EXPECTED = "EuRoC ASL (mav0/cam0/, mav0/cam1/, each with data.csv, data/ and sensor.yaml)"
+
+FRAME_RATE = FrameRate(20.0, "EuRoC nominal rate")
+"""The MAV's stereo camera (VI-Sensor) runs at 20 Hz."""
 
 GROUNDTRUTH_MAX_OFFSET = 0.005
 """Largest time difference [s] between a frame and its ground-truth row."""
@@ -92,8 +96,8 @@ def load(folder: Path) -> StereoSequence:
         root=folder,
         camera=rectification.camera,
         timestamps=timestamps,
-        left_paths=left_paths,
-        right_paths=right_paths,
+        frame_rate=FRAME_RATE,
+        frames=ImageFiles(left_paths, right_paths, rectification.camera.size),
         groundtruth=_groundtruth(mav0, timestamps, T_b_rect),
         rectifier=rectification,
     )

@@ -91,6 +91,31 @@ def png_size(path: Path) -> tuple[int, int]:
     return width, height
 
 
+_JPEG_START = b"\xff\xd8"
+_JPEG_FRAME_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+"""Start-of-frame markers SOF0..SOF15 (C4 = Huffman tables, C8 = reserved, CC = arithmetic coding)."""
+
+
+def jpeg_size(path: Path) -> tuple[int, int]:
+    """``(width, height)`` of a JPEG file from its start-of-frame segment, without decoding it.
+
+    Walks the segments from the start of the file (a few hundred bytes in practice).
+    """
+    with path.open("rb") as file:
+        if file.read(2) != _JPEG_START:
+            raise DatasetError(f"{path}: not a JPEG image (cannot read the image size)")
+        while len(segment := file.read(4)) == 4 and segment[0] == 0xFF:
+            marker, length = segment[1], struct.unpack(">H", segment[2:])[0]
+            if marker in _JPEG_FRAME_MARKERS:
+                header = file.read(5)  # precision (1 byte), height, width
+                if len(header) == 5:
+                    height, width = struct.unpack(">HH", header[1:])
+                    return width, height
+                break
+            file.seek(length - 2, 1)
+    raise DatasetError(f"{path}: JPEG without a frame header (cannot read the image size)")
+
+
 def read_times(
     path: Path, n_frames: int, parse_line: Callable[[str], float] = float
 ) -> np.ndarray:
@@ -136,22 +161,28 @@ def _parse_time(
 
 
 def groundtruth_at_frames(
-    trajectory: Trajectory, times: np.ndarray, max_offset: float, source: Path
+    trajectory: Trajectory, times: np.ndarray, max_offset: float, source: Path | str
 ) -> Trajectory:
     """The pose of ``trajectory`` nearest to each of ``times`` (N,) [s], stamped with that time.
 
     Times whose nearest pose is more than ``max_offset`` [s] away are left out; when all
-    are, `DatasetError` names ``source``, the ground-truth file.
+    are, `DatasetError` names ``source``, the ground-truth file (or bag topic).
     """
-    stamps = trajectory.timestamps
-    after = np.clip(np.searchsorted(stamps, times), 0, len(stamps) - 1)
-    before = np.clip(after - 1, 0, len(stamps) - 1)
-    nearest = np.where(
-        np.abs(stamps[after] - times) < np.abs(stamps[before] - times), after, before
-    )
-    within = np.abs(stamps[nearest] - times) <= max_offset
+    nearest = nearest_within(trajectory.timestamps, times, max_offset)
+    within = nearest >= 0
     if not within.any():
         raise DatasetError(
             f"{source}: no ground-truth pose within {max_offset * 1e3:g} ms of any frame time"
         )
     return Trajectory(times[within], trajectory.poses[nearest[within]])
+
+
+def nearest_within(stamps: np.ndarray, times: np.ndarray, max_offset: float) -> np.ndarray:
+    """For each of ``times`` (N,), the index of the nearest of ``stamps`` (M,), -1 when farther than ``max_offset``.
+
+    ``stamps`` must be sorted; both in the same unit (seconds, or integer nanoseconds).
+    """
+    after = np.clip(np.searchsorted(stamps, times), 0, len(stamps) - 1)
+    before = np.clip(after - 1, 0, len(stamps) - 1)
+    nearest = np.where(np.abs(stamps[after] - times) < np.abs(stamps[before] - times), after, before)
+    return np.where(np.abs(stamps[nearest] - times) <= max_offset, nearest, -1)

@@ -18,6 +18,7 @@ Folder::
     t: [tx, ty, tz]            #   p_right = R p_left + t, t in metres
     rectified: false           # optional, default false (see below)
     fps: 10                    # optional, default 10 (see below)
+    T_gt_left: [[...], [...], [...], [...]]   # optional, default identity (see below)
 
 - Images are paired by file name (`pld_slam.datasets.files.paired_images`), so both
   folders must name a pair alike (``left/0001.png`` and ``right/0001.png``); a file
@@ -34,21 +35,29 @@ Folder::
   raises `DatasetError`: the images are swapped or ``t`` has the wrong sign.
 - Times: ``times.txt`` when present (strictly increasing), else frame index / ``fps``
   with ``fps`` from ``calib.yaml`` (default 10 Hz, KITTI's rate), frame 0 at 0 s.
-- Ground truth: ``groundtruth.txt`` must give ``T_w_c`` of the *raw left camera* on the
-  clock of the frame times; that it does is the user's responsibility (a pose of the
-  rig body or of another sensor cannot be told apart). We rotate it into the rectified
-  left camera (``T_w_rect = T_w_left [R1^T | 0]``; the identity for ``rectified: true``),
-  give each frame the row nearest in time within `GROUNDTRUTH_MAX_OFFSET`, and move the
-  first pose to identity.
+- Frame rate: ``fps`` when given (the rig's nominal rate), else the median step of
+  ``times.txt``, else the default 10 Hz.
+- Ground truth: ``groundtruth.txt`` gives ``T_w_gt`` of some frame ``gt`` on the clock of
+  the frame times: the *raw left camera* unless ``T_gt_left`` (4x4, maps a point of the
+  raw left camera frame into ``gt``: e.g. EuRoC's ``T_BS`` of cam0 when the poses are
+  the body's) says otherwise; that it does is the user's responsibility (a pose of the
+  rig body or of another sensor cannot be told apart). We move it into the rectified
+  left camera (``T_w_rect = T_w_gt T_gt_left [R1^T | 0]``; ``R1`` the identity for
+  ``rectified: true``), give each frame the row nearest in time within
+  `GROUNDTRUTH_MAX_OFFSET`, and move the first pose to identity.
+
+The calibration part (`read_rig_calibration`) also serves ROS bags (``pld-slam run
+RECORDING.bag --calib calib.yaml``, `pld_slam.datasets.rosbag`).
 
 The sequence name is the folder name.
 """
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
     Calibration,
     read_yaml_calibration,
@@ -86,27 +95,56 @@ def matches(folder: Path) -> bool:
     return (folder / "left").is_dir()
 
 
-def load(folder: Path) -> StereoSequence:
-    """Open the generic sequence in ``folder`` (see the module docstring)."""
-    folder = folder.resolve()
-    left_paths, right_paths = paired_image_folders(folder / "left", folder / "right", IMAGE_SUFFIXES)
-    calibration = read_yaml_calibration(folder / "calib.yaml")
-    timestamps = _frame_times(folder, len(left_paths), calibration)
+@dataclass(frozen=True)
+class RigCalibration:
+    """What a ``calib.yaml`` says of a stereo rig (schema in the module docstring).
+
+    Attributes
+    ----------
+    camera : StereoCamera
+        The rectified camera the frames are delivered in.
+    rectifier : StereoRectification or None
+        Rectifies the raw pairs; None for ``rectified: true``.
+    T_gt_rect : np.ndarray
+        (4, 4) maps a point of the rectified left camera frame into the frame ``gt``
+        whose poses the ground truth gives: ``T_gt_left [R1^T | 0]``.
+    fps : float or None
+        ``fps`` [Hz], None when not given.
+    """
+
+    camera: StereoCamera
+    rectifier: StereoRectification | None
+    T_gt_rect: np.ndarray
+    fps: float | None
+
+
+def read_rig_calibration(path: Path) -> RigCalibration:
+    """The `RigCalibration` of the ``calib.yaml`` at ``path``; every problem a `DatasetError` naming it."""
+    calibration = read_yaml_calibration(path)
     if _is_rectified(calibration):
         camera, rectifier, T_left_rect = _rectified_camera(calibration), None, np.eye(4)
     else:
         rectifier = _rectification(calibration)
         camera, T_left_rect = rectifier.camera, rectifier.T_raw_rect
+    return RigCalibration(camera, rectifier, _gt_from_left(calibration) @ T_left_rect, _fps(calibration))
+
+
+def load(folder: Path) -> StereoSequence:
+    """Open the generic sequence in ``folder`` (see the module docstring)."""
+    folder = folder.resolve()
+    left_paths, right_paths = paired_image_folders(folder / "left", folder / "right", IMAGE_SUFFIXES)
+    rig = read_rig_calibration(folder / "calib.yaml")
+    timestamps, frame_rate = _times_and_rate(folder, len(left_paths), rig.fps)
     return StereoSequence(
         name=folder.name,
         layout=LAYOUT,
         root=folder,
-        camera=camera,
+        camera=rig.camera,
         timestamps=timestamps,
-        left_paths=left_paths,
-        right_paths=right_paths,
-        groundtruth=_groundtruth(folder / "groundtruth.txt", timestamps, T_left_rect),
-        rectifier=rectifier,
+        frame_rate=frame_rate,
+        frames=ImageFiles(left_paths, right_paths, rig.camera.size),
+        groundtruth=read_groundtruth(folder / "groundtruth.txt", timestamps, rig.T_gt_rect),
+        rectifier=rig.rectifier,
     )
 
 
@@ -128,15 +166,36 @@ def _image_size(calibration: Calibration) -> tuple[int, int]:
     return int(width), int(height)
 
 
-def _frame_times(folder: Path, n_frames: int, calibration: Calibration) -> np.ndarray:
-    """Frame times (N,) [s]: ``times.txt`` if present, else index / ``fps``."""
-    times_path = folder / "times.txt"
-    if times_path.exists():
-        return read_times(times_path, n_frames)
-    fps = float(calibration.array("fps", (1,))[0]) if calibration.has("fps") else DEFAULT_FPS
+def _fps(calibration: Calibration) -> float | None:
+    """The optional ``fps`` [Hz], positive; None when absent."""
+    if not calibration.has("fps"):
+        return None
+    fps = float(calibration.array("fps", (1,))[0])
     if not fps > 0.0:
         raise calibration.error("fps", f"must be positive, got {fps:g}")
-    return np.arange(n_frames) / fps
+    return fps
+
+
+def _times_and_rate(folder: Path, n_frames: int, fps: float | None) -> tuple[np.ndarray, FrameRate]:
+    """Frame times (N,) [s] and the frame rate (module docstring: Times, Frame rate)."""
+    times_path = folder / "times.txt"
+    nominal = None if fps is None else FrameRate(fps, "fps of calib.yaml")
+    if times_path.exists():
+        times = read_times(times_path, n_frames)
+        return times, nominal or FrameRate.from_times(times, "median step of times.txt")
+    nominal = nominal or FrameRate(DEFAULT_FPS, "default rate (no fps in calib.yaml, no times.txt)")
+    return np.arange(n_frames) / nominal.hz, nominal
+
+
+def _gt_from_left(calibration: Calibration) -> np.ndarray:
+    """``T_gt_left`` (4, 4), the identity when absent; a matrix that is not a rigid motion raises."""
+    if not calibration.has("T_gt_left"):
+        return np.eye(4)
+    T = calibration.array("T_gt_left", (4, 4))
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise calibration.error("T_gt_left", "must end with the row 0 0 0 1")
+    _check_rotation(calibration, "T_gt_left", T[:3, :3])
+    return T
 
 
 def _rectified_camera(calibration: Calibration) -> StereoCamera:
@@ -161,10 +220,15 @@ def _distortion(calibration: Calibration, key: str) -> np.ndarray:
 def _rotation(calibration: Calibration, key: str) -> np.ndarray:
     """The (3, 3) rotation matrix of ``key``; a matrix that is not a rotation raises."""
     R = calibration.array(key, (3, 3))
+    _check_rotation(calibration, key, R)
+    return R
+
+
+def _check_rotation(calibration: Calibration, key: str, R: np.ndarray) -> None:
+    """Raise `DatasetError` naming ``key`` unless ``R`` (3, 3) is a rotation matrix."""
     orthonormal = np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOLERANCE)
     if not orthonormal or np.linalg.det(R) < 0.0:
         raise calibration.error(key, "is not a rotation matrix")
-    return R
 
 
 def _rectification(calibration: Calibration) -> StereoRectification:
@@ -180,13 +244,24 @@ def _rectification(calibration: Calibration) -> StereoRectification:
     )
 
 
-def _groundtruth(path: Path, timestamps: np.ndarray, T_left_rect: np.ndarray) -> Trajectory | None:
+def read_groundtruth(path: Path, timestamps: np.ndarray, T_gt_rect: np.ndarray) -> Trajectory | None:
     """``T_w_c`` of the rectified left camera at the frame times, first = identity, or None.
 
-    ``T_left_rect`` (4, 4) maps the rectified left camera frame into the raw left one.
+    ``path`` is a TUM file of ``T_w_gt``; ``T_gt_rect`` (4, 4) maps the rectified left
+    camera frame into ``gt`` (`RigCalibration`).
     """
     if not path.exists():
         return None
-    left = read_tum(path)
-    at_frames = groundtruth_at_frames(left, timestamps, GROUNDTRUTH_MAX_OFFSET, path)
-    return Trajectory(at_frames.timestamps, at_frames.poses @ T_left_rect).relative_to_first()
+    return groundtruth_in_camera(read_tum(path), timestamps, T_gt_rect, path)
+
+
+def groundtruth_in_camera(
+    T_w_gt: Trajectory, timestamps: np.ndarray, T_gt_rect: np.ndarray, source: Path | str
+) -> Trajectory:
+    """Poses ``T_w_gt`` moved to the rectified left camera at the frame times (N,) [s], first = identity.
+
+    Each frame takes the pose nearest in time within `GROUNDTRUTH_MAX_OFFSET`
+    (`groundtruth_at_frames`, which names ``source`` when none is).
+    """
+    at_frames = groundtruth_at_frames(T_w_gt, timestamps, GROUNDTRUTH_MAX_OFFSET, source)
+    return Trajectory(at_frames.timestamps, at_frames.poses @ T_gt_rect).relative_to_first()

@@ -8,6 +8,8 @@
   it from the header of the first left PNG (24 bytes), so opening decodes no image.
 - Times: ``times.txt``, one time [s] per line and per frame. It is required: every KITTI
   download has it, and a guessed frame rate would silently distort time-based metrics.
+- Frame rate: KITTI's nominal 10 Hz (`FRAME_RATE`); for what ``pld-slam synth`` wrote,
+  ``frame_rate`` of its ``synth.json``, else the median step of ``times.txt``.
 - Ground truth (optional): the official ``.../poses/NN.txt`` two folders up, else
   ``poses.txt`` inside the sequence folder (how the project's synthetic generator writes
   one sequence), read with `pld_slam.io.trajectory.read_kitti` (a malformed row raises
@@ -25,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
 from pld_slam.datasets.files import paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
@@ -34,6 +36,9 @@ from pld_slam.trajectory import Trajectory
 
 LAYOUT = "kitti_odometry"
 EXPECTED = "KITTI odometry (image_0/, image_1/, calib.txt, times.txt)"
+
+FRAME_RATE = FrameRate(10.0, "KITTI nominal rate")
+"""KITTI's cameras are triggered by the Velodyne at 10 Hz (odometry and raw alike)."""
 
 
 def matches(folder: Path) -> bool:
@@ -53,25 +58,35 @@ def load(folder: Path) -> StereoSequence:
         *png_size(left_paths[0]),
         source=calibration.path,
     )
+    synth = _synth_metadata(folder)
     return StereoSequence(
-        name=_sequence_name(folder),
+        name=f"kitti_{folder.name}" if synth is None else f"synth_{synth['scenario']}",
         layout=LAYOUT,
         root=folder,
         camera=camera,
         timestamps=timestamps,
-        left_paths=left_paths,
-        right_paths=right_paths,
+        frame_rate=FRAME_RATE if synth is None else _synth_frame_rate(synth, timestamps),
+        frames=ImageFiles(left_paths, right_paths, camera.size),
         groundtruth=_groundtruth(folder, timestamps),
         dynamic_mask_paths=_dynamic_mask_paths(folder, len(left_paths)),
     )
 
 
-def _sequence_name(folder: Path) -> str:
-    """``synth_<scenario>`` for what ``pld-slam synth`` wrote (it leaves synth.json), else ``kitti_<NN>``."""
+def _synth_metadata(folder: Path) -> dict | None:
+    """The ``synth.json`` that ``pld-slam synth`` leaves (with its ``scenario``), or None for KITTI."""
     try:
-        return f"synth_{json.loads((folder / 'synth.json').read_text())['scenario']}"
-    except (OSError, ValueError, KeyError, TypeError):
-        return f"kitti_{folder.name}"
+        metadata = json.loads((folder / "synth.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return metadata if isinstance(metadata, dict) and "scenario" in metadata else None
+
+
+def _synth_frame_rate(metadata: dict, timestamps: np.ndarray) -> FrameRate:
+    """``frame_rate`` [Hz] of a ``synth.json``, else the median step of the frame times."""
+    rate = metadata.get("frame_rate")
+    if isinstance(rate, (int, float)) and rate > 0:
+        return FrameRate(float(rate), "frame_rate of synth.json")
+    return FrameRate.from_times(timestamps, "median step of times.txt")
 
 
 def _groundtruth_file(folder: Path) -> Path | None:

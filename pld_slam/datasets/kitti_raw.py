@@ -3,6 +3,7 @@
 - Images: ``image_00/data/*.png`` (left grey) and ``image_01/data/*.png`` (right grey),
   synced and rectified, paired by file name (`pld_slam.datasets.files.paired_images`):
   a file without a partner of the same name raises, naming it.
+- Frame rate: KITTI's nominal 10 Hz (`pld_slam.datasets.kitti_odometry.FRAME_RATE`).
 - Times: ``image_00/timestamps.txt``, datetimes such as ``2011-09-26 13:04:32.351950336``,
   read as UTC seconds since the Unix epoch; the whole seconds and the nanoseconds are
   added once in float64, which keeps them to float64's resolution (about 0.2 us).
@@ -23,13 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pld_slam.datasets.base import StereoSequence
+from pld_slam.datasets.base import ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
     Calibration,
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
 from pld_slam.datasets.files import paired_image_folders, read_times
+from pld_slam.datasets.kitti_odometry import FRAME_RATE
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import inverse, make_pose
 from pld_slam.trajectory import Trajectory
@@ -76,8 +78,8 @@ def load(folder: Path) -> StereoSequence:
         root=folder,
         camera=camera,
         timestamps=timestamps,
-        left_paths=left_paths,
-        right_paths=right_paths,
+        frame_rate=FRAME_RATE,
+        frames=ImageFiles(left_paths, right_paths, camera.size),
         groundtruth=_groundtruth(folder, timestamps, cam_to_cam),
     )
 

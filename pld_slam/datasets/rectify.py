@@ -116,10 +116,45 @@ def rectify_stereo(
         flags=cv2.CALIB_ZERO_DISPARITY,
         alpha=RECTIFY_ALPHA,
     )
-    camera = stereo_camera_from_projections(P1, P2, *image_size, source=source)
+    return rectification_of(
+        RectifiedView(K_left, distortion_left, R1, P1), RectifiedView(K_right, distortion_right, R2, P2),
+        image_size, source,
+    )
+
+
+@dataclass(frozen=True)
+class RectifiedView:
+    """How one raw camera maps to its rectified view: what ``stereoRectify`` (or ROS ``CameraInfo``) gives.
+
+    Attributes
+    ----------
+    K : np.ndarray
+        (3, 3) raw intrinsics [px].
+    distortion : np.ndarray
+        (4,), (5,) or (8,) OpenCV distortion coefficients ``k1 k2 p1 p2 (k3 (k4 k5 k6))``.
+    R : np.ndarray
+        (3, 3) rotates a point of the raw camera frame into the rectified one.
+    P : np.ndarray
+        (3, 4) projection of the rectified view (the right one's ``P[0, 3] = -fx * baseline``).
+    """
+
+    K: np.ndarray
+    distortion: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+
+
+def rectification_of(
+    left: RectifiedView, right: RectifiedView, image_size: tuple[int, int], source: Path | str
+) -> StereoRectification:
+    """The `StereoRectification` of two cameras whose rectified views are given.
+
+    ``image_size`` is ``(width, height)`` of the raw images, also the rectified size;
+    ``source`` (the calibration) is named in errors.
+    """
     return StereoRectification(
-        camera=camera,
-        R_rect_raw=R1,
-        left_map=_pixel_map(K_left, distortion_left, R1, P1, image_size),
-        right_map=_pixel_map(K_right, distortion_right, R2, P2, image_size),
+        camera=stereo_camera_from_projections(left.P, right.P, *image_size, source=source),
+        R_rect_raw=left.R,
+        left_map=_pixel_map(left.K, left.distortion, left.R, left.P, image_size),
+        right_map=_pixel_map(right.K, right.distortion, right.R, right.P, image_size),
     )

@@ -28,6 +28,32 @@ class StereoCamera:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` of both images [px]."""
+        return self.width, self.height
+
+    def scaled(self, factor: float) -> "StereoCamera":
+        """The camera of its images resized by ``factor`` (e.g. 0.5 halves each side).
+
+        The new size is the old one times ``factor``, rounded (at least 1 px); the
+        intrinsics follow the resize that produces exactly that size, ``s_x = W' / W``
+        and ``s_y = H' / H``, with pixel centres at integers: ``fx' = s_x fx`` and
+        ``cx' = s_x (cx + 0.5) - 0.5`` (the same for y). The baseline is a length in the
+        world and stays.
+        """
+        width, height = (max(1, round(side * factor)) for side in (self.width, self.height))
+        s_x, s_y = width / self.width, height / self.height
+        return StereoCamera(
+            fx=self.fx * s_x,
+            fy=self.fy * s_y,
+            cx=s_x * (self.cx + 0.5) - 0.5,
+            cy=s_y * (self.cy + 0.5) - 0.5,
+            baseline=self.baseline,
+            width=width,
+            height=height,
+        )
+
+    @property
     def bf(self) -> float:
         """Baseline times focal length [m px]: disparity = bf / depth."""
         return self.baseline * self.fx

@@ -141,18 +141,24 @@ def _check_increasing(path, line_numbers: np.ndarray, timestamps: np.ndarray) ->
         )
 
 
-def _rotations_from_quaternions(
-    path, line_numbers: np.ndarray, q_xyzw: np.ndarray
-) -> np.ndarray:
-    """Rotation matrices (M, 3, 3) of near-unit quaternions (M, 4) in (x, y, z, w) order."""
+def rotations_from_quaternions(q_xyzw: np.ndarray, error: Callable[[int, str], Exception]) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) of near-unit quaternions (M, 4) in (x, y, z, w) order.
+
+    The first quaternion whose norm is off 1 by more than `UNIT_TOLERANCE` raises
+    ``error(index, problem)``, so that each reader names its own file, line or message.
+    """
     norms = np.linalg.norm(q_xyzw, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > UNIT_TOLERANCE)
     if bad.size:
-        i = bad[0]
-        raise _error(
-            path, line_numbers[i], f"quaternion norm is {norms[i]:.6g}, not 1 (zero or not unit)"
-        )
+        raise error(bad[0], f"quaternion norm is {norms[bad[0]]:.6g}, not 1 (zero or not unit)")
     return Rotation.from_quat(q_xyzw / norms[:, None]).as_matrix()
+
+
+def _rotations_from_quaternions(
+    path, line_numbers: np.ndarray, q_xyzw: np.ndarray
+) -> np.ndarray:
+    """`rotations_from_quaternions` of a file's rows, a bad one named by ``file:line``."""
+    return rotations_from_quaternions(q_xyzw, lambda i, problem: _error(path, line_numbers[i], problem))
 
 
 def _check_rotations(path, line_numbers: np.ndarray, R: np.ndarray) -> None:
