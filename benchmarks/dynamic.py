@@ -20,7 +20,7 @@ Sections (``--section``, all by default):
   landmarks each parked car gave the map before it pulled out, and how many of them are
   still alive at the 5th keyframe after it started moving (figure: none). A landmark
   belongs to the object whose surface its creating feature lay on (the renderer's object
-  ids at that keyframe's frame).
+  ids at that keyframe's frame; `pld_slam.eval.mover_landmarks`).
 
     python benchmarks/dynamic.py [--section scenes real parked] [--seeds 0 1 2]
                                  [--variants neither grid llg both masks] [--out DIR]
@@ -36,8 +36,8 @@ import pandas as pd
 from extracts import existing_extracts
 
 from pld_slam.datasets import StereoSequence, open_sequence
+from pld_slam.eval.mover_landmarks import MoverLandmarks
 from pld_slam.eval.run_summary import summarise_run
-from pld_slam.mapping.map import Map
 from pld_slam.run_config import load_run_config
 from pld_slam.synth.scenarios import DEFAULT_FRAMES, build_scenario
 from pld_slam.synth.writer import ensure_sequence
@@ -164,69 +164,20 @@ def real(variants: list[str], extra: tuple[str, ...]) -> None:
         print_table(table.drop(columns=count_columns(table)).set_index(["sequence", "variant"]))
 
 
-def start_frames(world) -> dict[int, int]:
-    """Object id -> the first frame at which each mover of the scenario moves (movers that do)."""
-    starts = {}
-    for mover in world.scene.moving:
-        moving = [i for i in range(world.n_frames) if mover.moves_at(i)]
-        if moving:
-            starts[mover.object_id] = moving[0]
-    return starts
-
-
-def landmark_owners(world_map: Map, keyframe_id: int, world) -> list[dict[int, int]]:
-    """Per landmark kind (points, lines), ``{landmark id: object id}`` of the landmarks keyframe
-    ``keyframe_id`` created: the object under its creating feature in the rendered frame."""
-    keyframe = world_map.keyframes[keyframe_id]
-    object_id = world.render_views(keyframe.frame_index)[0].object_id
-    height, width = object_id.shape
-    owners = []
-    for kind, pixels in zip(world_map.kinds, (keyframe.features.keypoints.uv,
-                                              keyframe.features.lines.endpoints.reshape(-1, 2, 2).mean(axis=1))):
-        created = np.flatnonzero(kind.first_keyframe[: len(kind)] == keyframe_id)
-        features = [kind.observers[landmark][keyframe_id] for landmark in created]
-        u = np.clip(np.rint(pixels[features, 0]).astype(int), 0, width - 1) if features else np.zeros(0, int)
-        v = np.clip(np.rint(pixels[features, 1]).astype(int), 0, height - 1) if features else np.zeros(0, int)
-        owners.append(dict(zip(created.tolist(), object_id[v, u].tolist())))
-    return owners
-
-
 def parked_run(folder: Path, seed: int, extra: tuple[str, ...]) -> list[dict]:
     """One ``parked_then_moving`` run with both detectors: a row per car that pulled out (module docstring)."""
     sequence = open_sequence(folder)
-    world = build_scenario("parked_then_moving", len(sequence), SIZE, seed)
-    starts = start_frames(world)
-    config = load_run_config(sequence, overrides=extra + VARIANTS["both"]).config
-    owners: list[dict[int, int]] = [{}, {}]
-    keyframes_after: dict[int, int] = dict.fromkeys(starts, 0)
-    alive_after: dict[int, tuple[int, int]] = {}
+    watch = MoverLandmarks(build_scenario("parked_then_moving", len(sequence), SIZE, seed), KEYFRAMES_AFTER_START)
     system: System
 
     def on_record(record: FrameRecord) -> None:
-        if record.keyframe is None:
-            return
-        world_map = system.local_mapping.map
-        for kind_owners, new in zip(owners, landmark_owners(world_map, record.reference_keyframe, world)):
-            kind_owners.update(new)
-        for mover, start in starts.items():
-            if record.index >= start and mover not in alive_after:
-                keyframes_after[mover] += 1
-                if keyframes_after[mover] == KEYFRAMES_AFTER_START:
-                    alive_after[mover] = tuple(
-                        sum(1 for landmark, owner in kind_owners.items() if owner == mover and kind.alive[landmark])
-                        for kind, kind_owners in zip(world_map.kinds, owners))
+        if record.keyframe is not None:
+            watch.on_keyframe(system.local_mapping.map, record.reference_keyframe)
 
-    system = System(sequence, config, record_observer=on_record)
+    system = System(sequence, load_run_config(sequence, overrides=extra + VARIANTS["both"]).config,
+                    record_observer=on_record)
     system.run()
-    rows = []
-    for mover, start in starts.items():
-        created = [sum(1 for landmark, owner in kind_owners.items() if owner == mover) for kind_owners in owners]
-        alive = alive_after.get(mover, (np.nan, np.nan))
-        rows.append({"sequence": sequence.name, "car": mover, "starts at frame": start,
-                     "points made": created[0], "lines made": created[1],
-                     f"points alive at KF+{KEYFRAMES_AFTER_START}": alive[0],
-                     f"lines alive at KF+{KEYFRAMES_AFTER_START}": alive[1]})
-    return rows
+    return [dict(row, sequence=sequence.name) for row in watch.rows()]
 
 
 def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
@@ -241,7 +192,8 @@ def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
           f"{KEYFRAMES_AFTER_START} keyframes after it started (NaN: the run ended first)")
     print(table.to_string(index=False), flush=True)
     alive = table.filter(like="alive").to_numpy(dtype=float)
-    print(f"alive at KF+{KEYFRAMES_AFTER_START} in all: {int(np.nansum(alive))}")
+    print(f"alive at KF+{KEYFRAMES_AFTER_START} in all: {int(np.nansum(alive))} "
+          f"(of {int(table[['points made', 'lines made']].to_numpy().sum())} made on them)")
 
 
 def main() -> None:

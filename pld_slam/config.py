@@ -189,8 +189,8 @@ class DynamicConfig:
         "threshold", 0.0
     )
     rival_min_share: float = _param(
-        0.25, "the robust solve's outliers, when at least this share of the matches, are solved on their own as a "
-        "rival motion, and the static world's is chosen (pld_slam.tracking.static_world)", 0.0, 1.0
+        0.15, "a robust solve that rejects this share of the matches is checked for the static world's motion, "
+        "and a coherent motion needs this share as inliers to be a candidate (pld_slam.tracking.static_world)", 0.0, 1.0
     )
     motion_prior_m: float = _param(
         0.05, "expected error of the constant-velocity prediction per frame [m]: a motion within it agrees with the "

@@ -321,6 +321,8 @@ def _new_keyframe(
         line_ids=np.full(len(features.lines), -1) if found is None else found.line_ids.copy(),
         point_dynamic=tracked.point_dynamic,
         line_dynamic=tracked.line_dynamic,
+        point_rejected=tracked.point_rejected,
+        line_rejected=tracked.line_rejected,
     )
 
 

@@ -84,8 +84,9 @@ class LoopCandidate:
     correction_m, correction_deg : the correction the loop would make to the keyframe.
     accepted : whether the loop was closed with it.
     reason : ``"accepted"``, the test it failed (``"consistency"``, the detector's; ``"pnp"``: fewer
-        than ``loop.min_inliers`` descriptor matches or no PnP pose; ``"inliers"``, ``"drift"``, ``"distance"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but
-        ``loop.candidates`` others were verified first).
+        than ``loop.min_inliers`` descriptor matches or no PnP pose; ``"inliers"``, ``"drift"``,
+        ``"distance"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but ``loop.candidates``
+        others were verified first).
     """
 
     keyframe: int

@@ -25,6 +25,9 @@ class KeyFrame:
     line_ids : (L,) int64 map line of each stereo line, ``-1`` for none.
     point_dynamic, line_dynamic : (P,), (L,) bool, keypoints and lines labelled dynamic in
         this frame: they never become landmarks.
+    point_rejected, line_rejected : (P,), (L,) bool, keypoints and lines matched to the
+        reference frame whose match the frame's pose rejected: they do not become landmarks
+        either (`pld_slam.mapping.local_mapping`, step 3); None for none.
     """
 
     id: int
@@ -37,6 +40,8 @@ class KeyFrame:
     line_ids: np.ndarray
     point_dynamic: np.ndarray
     line_dynamic: np.ndarray
+    point_rejected: np.ndarray | None = None
+    line_rejected: np.ndarray | None = None
 
     @property
     def T_w_c(self) -> np.ndarray:

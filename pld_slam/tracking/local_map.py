@@ -52,7 +52,12 @@ association went wrong.
 Dynamic features. A feature labelled dynamic (by the detectors, on the reference-frame
 matches) is matched like any other but never enters the pose: the landmark it matched is
 reported (``dynamic_point_ids``) so that local mapping can remove landmarks that keep
-landing on movers, and tracking never re-admits them.
+landing on movers, and tracking never re-admits them. A mover that entered the map before
+the detectors caught it (the first keyframe has no labels; a parked car that pulls out)
+can still pull the solve; with ``check_static_world`` the local map's solve gets the same
+check as the reference solve (`pld_slam.tracking.static_world`), the pose it started from
+(the reference solve's, already checked) as the prediction, and the landmarks found
+moving there are reported as dynamic too.
 """
 
 from dataclasses import dataclass
@@ -74,6 +79,7 @@ from pld_slam.tracking.matching import (
     select_matches,
 )
 from pld_slam.tracking.observations import line_observations, point_observations
+from pld_slam.tracking.static_world import static_world_solution
 
 _MIN_DEPTH = 0.1
 """A landmark nearer than this to the camera plane [m] is not searched for."""
@@ -301,11 +307,13 @@ def track_local_map(
     config: Config,
     pose_options: PoseOnlyOptions,
     reference: ReferenceMatches,
+    check_static_world: bool = False,
 ) -> LocalMapTracking:
     """Match the local map into the frame from ``T_c_w_init`` (4, 4) and solve ``T_c_w`` over the static
     matches and the ``reference`` matches of features without a map match (module docstring).
 
     ``dynamic_points`` (P,) and ``dynamic_lines`` (L,) bool label the frame's keypoints and lines.
+    ``check_static_world``: ``T_c_w_init`` is a trusted pose of the static world (module docstring).
     """
     keypoints = features.keypoints
     point_matches = match_map_points(camera, T_c_w_init, local_map.points, keypoints, config)
@@ -320,31 +328,32 @@ def track_local_map(
     )
     extra_points = ~np.isin(reference.point_index, map_points.current)
     extra_lines = ~np.isin(reference.line_index, map_lines.current)
-    solution = optimize_pose_rejecting_outliers(
-        camera,
-        T_c_w_init,
-        points=point_observations(
-            np.concatenate([map_points.geometry, reference.points_w[extra_points]]),
-            keypoints,
-            np.concatenate([map_points.current, reference.point_index[extra_points]]),
-            config.points,
-        ),
-        lines=line_observations(
-            camera,
-            np.concatenate([map_lines.geometry, reference.lines_w[extra_lines]]),
-            features.lines,
-            np.concatenate([map_lines.current, reference.line_index[extra_lines]]),
-            config,
-        ),
-        options=pose_options,
+    points = point_observations(
+        np.concatenate([map_points.geometry, reference.points_w[extra_points]]),
+        keypoints,
+        np.concatenate([map_points.current, reference.point_index[extra_points]]),
+        config.points,
     )
+    lines = line_observations(
+        camera,
+        np.concatenate([map_lines.geometry, reference.lines_w[extra_lines]]),
+        features.lines,
+        np.concatenate([map_lines.current, reference.line_index[extra_lines]]),
+        config,
+    )
+    solution = optimize_pose_rejecting_outliers(camera, T_c_w_init, points=points, lines=lines, options=pose_options)
+    moving_ids = np.zeros(0, dtype=np.int64)
+    if check_static_world and solution.success:
+        static = static_world_solution(camera, solution, T_c_w_init, points, lines, True, pose_options, config)
+        solution, moving_ids = static.solution, map_points.landmarks[static.moving[: len(map_points)]]
+    dynamic_point_ids = local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous]
     return LocalMapTracking(
         solution=solution,
         point_ids=_inlier_ids(len(keypoints), map_points, solution.inliers.points[: len(map_points)]),
         line_ids=_inlier_ids(len(features.lines), map_lines, solution.inliers.lines[: len(map_lines)]),
         visible_point_ids=local_map.points.ids[point_matches.visible],
         visible_line_ids=local_map.lines.ids[line_matches.visible],
-        dynamic_point_ids=local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous],
+        dynamic_point_ids=np.union1d(dynamic_point_ids, moving_ids),
         dynamic_line_ids=local_map.lines.ids[_dynamic(line_matches.matches, dynamic_lines).previous],
         point_matches=len(map_points),
         line_matches=len(map_lines),

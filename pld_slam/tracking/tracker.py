@@ -32,7 +32,13 @@ the keyframes most similar by GGS), and the pose the local map confirms with mor
 landmarks wins (`TrackingStatus.RECOVERED` when it is the one without the prior). On the
 synthetic street started from rest with two frames in three dropped, the widened guided
 search locked onto the facades' repeated texture one period off and ran 1.6 m per frame
-fast with 70-110 inliers per frame, a silently wrong trajectory (ATE 1.1 m).
+fast with 70-110 inliers per frame, a silently wrong trajectory (ATE 1.1 m). A frame whose
+local-map pose is the one a trusted motion model predicted (the last frame tracked
+normally, the guided search not widened, the pose within the model's expected error:
+`static_world.motion_model_distance`) is not posed again when it merely tracks few
+landmarks: on the synthetic ``convoy`` a bus and a truck hid most of the static world,
+and the pose from scratch matched landmarks the convoy had left in the map (115 against
+106) and put the camera back 1.7 m, where it then drove along with the convoy.
 Otherwise (or without a map), fewer than ``tracking.min_inliers`` inlier points + lines,
 or a failed solve, keeps the motion model's prediction for that frame (flagged
 `TrackingStatus.LOST`): the trajectory stays continuous, and the next frame is tracked
@@ -76,7 +82,7 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
-from pld_slam.tracking.static_world import static_world_solution
+from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 
 
 class TrackingStatus(enum.Enum):
@@ -130,6 +136,9 @@ class TrackedFrame:
     keyframe : why the frame becomes a keyframe, or None (always None without a map).
     point_dynamic, line_dynamic : (P,), (L,) bool, the frame's keypoints and lines labelled
         dynamic (empty when the frame had no features).
+    point_rejected, line_rejected : (P,), (L,) bool, the frame's keypoints and lines matched to
+        the reference frame whose match its pose rejected (none when the pose did not come
+        from the reference: the first frame, a lost or recovered one).
     """
 
     T_w_c: np.ndarray
@@ -142,6 +151,8 @@ class TrackedFrame:
     keyframe: KeyframeReason | None = None
     point_dynamic: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     line_dynamic: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    point_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    line_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
 @dataclass(frozen=True)
@@ -205,7 +216,9 @@ class Tracker:
         """Estimate the pose of the frame whose stereo features are ``features``.
 
         ``moving_mask`` (H, W) bool, the frame's moving-object pixels, replaces the two
-        detectors when given: the features on it are the dynamic ones (`moving_masks`).
+        detectors when given: the features on it are the dynamic ones (`moving_masks`), left
+        out of the robust solve from the start, so that movers a solve would follow cannot
+        pull it (the upper bound of the detectors must not share their failure).
         """
         if self._reference is None:
             return self._first_frame(features, moving_mask)
@@ -224,16 +237,19 @@ class Tracker:
             self._camera, reference.lines.endpoints_c[kept.lines.previous], features.lines, kept.lines.current,
             self._config,
         )
-        solution = optimize_pose_rejecting_outliers(
-            self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
-        )
-        clock.lap("pose")
         if moving_mask is None:
-            if self._config.dynamic.grid or self._config.dynamic.llg:
-                solution = self._static_world(solution, points, lines, T_c_r_predicted, trusted=not widened)
-            labels = self._label_dynamic(self._reference, features, kept, solution)
+            solution = optimize_pose_rejecting_outliers(
+                self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
+            )
+            clock.lap("pose")
+            solution, labels = self._detect_dynamic(features, kept, points, lines, solution, T_c_r_predicted, widened)
         else:
             labels = _labels_from_mask(features, kept, moving_mask)
+            solution = optimize_pose_rejecting_outliers(
+                self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options,
+                within=_static_observations(labels),
+            )
+            clock.lap("pose")
         solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
         point_dynamic, line_dynamic = _dynamic_features(features, kept, labels)
@@ -244,11 +260,14 @@ class Tracker:
         map_tracking = None
         recovered = False
         if self._local_map is not None:
+            detectors = moving_mask is None and (self._config.dynamic.grid or self._config.dynamic.llg)
             map_tracking = track_local_map(
                 self._camera, inverse(T_w_c), self._local_map, features, point_dynamic, line_dynamic,
                 self._config, self._pose_options, self._reference_matches(kept, solution, labels),
+                check_static_world=detectors and tracked and not widened,
             )
-            if widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking):
+            suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
+            if suspect and not self._predicted(map_tracking, widened):
                 from_scratch = self._track_without_prior(features, point_dynamic, line_dynamic)
                 if from_scratch is not None and from_scratch.tracked_landmarks > map_tracking.tracked_landmarks:
                     map_tracking, recovered = from_scratch, True
@@ -269,8 +288,9 @@ class Tracker:
         status = _status(tracked, recovered)
         self._prior_trusted = status is TrackingStatus.TRACKED
         keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
+        rejected = _rejected_features(features, kept, solution, labels, status is TrackingStatus.TRACKED)
         return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
-                            point_dynamic, line_dynamic)
+                            point_dynamic, line_dynamic, *rejected)
 
     def _first_frame(self, features: StereoFeatures, moving_mask: np.ndarray | None) -> TrackedFrame:
         """The first frame: the world (``T_w_c = I``) and the first keyframe. Without a motion
@@ -284,7 +304,17 @@ class Tracker:
                                                                  np.flatnonzero(line_dynamic)))
         first_keyframe = KeyframeReason.FIRST if self._map is not None else None
         return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
-                            point_dynamic=point_dynamic, line_dynamic=line_dynamic)
+                            point_dynamic=point_dynamic, line_dynamic=line_dynamic,
+                            point_rejected=np.zeros_like(point_dynamic), line_rejected=np.zeros_like(line_dynamic))
+
+    def _predicted(self, map_tracking: LocalMapTracking, widened: bool) -> bool:
+        """Whether the local map confirmed the pose a trusted motion model predicted (within its
+        expected error, `static_world.motion_model_distance`): then tracking few landmarks is
+        no sign that the prior was wrong (module docstring)."""
+        if widened or not self._prior_trusted or not self._map_tracked(map_tracking):
+            return False
+        T_c_w_predicted = self._velocity @ inverse(self._T_w_p)
+        return motion_model_distance(map_tracking.solution.T_c_w, T_c_w_predicted, self._config) <= 1.0
 
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
@@ -567,17 +597,22 @@ class Tracker:
         seen = self._seen_dynamic_lines[matches.previous]
         return dynamic_llg(predicted, current.lines.endpoints[matches.current], self._config.dynamic, seen)
 
-    def _static_world(
-        self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations,
-        T_c_r_predicted: np.ndarray, trusted: bool,
-    ) -> PoseOnlyResult:
-        """``solution``, or the frame solved for the static world's motion where two coherent motions
-        compete (`static_world`); the motion model is trusted when the last frame was tracked
-        normally and ``trusted`` (this frame's guided search did not have to widen)."""
-        if not solution.success:
-            return solution
-        return static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
-                                     self._prior_trusted and trusted, self._pose_options, self._config)
+    def _detect_dynamic(
+        self, features: StereoFeatures, kept: _FrameMatches, points: PointObservations, lines: LineObservations,
+        solution: PoseOnlyResult, T_c_r_predicted: np.ndarray, widened: bool,
+    ) -> tuple[PoseOnlyResult, DynamicLabels]:
+        """The robust ``solution``, or the frame solved for the static world's motion where two
+        coherent motions compete (`static_world`), and the dynamic labels judged against it
+        (with the points found moving there). The motion model is trusted when the last frame
+        was tracked normally and this one's guided search did not have to widen. Both detectors
+        off: ``solution`` and no labels."""
+        if solution.success and (self._config.dynamic.grid or self._config.dynamic.llg):
+            static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
+                                           self._prior_trusted and not widened, self._pose_options, self._config)
+            solution = static.solution
+            labels = self._label_dynamic(self._reference, features, kept, solution)
+            return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | static.moving)
+        return solution, self._label_dynamic(self._reference, features, kept, solution)
 
     def _without_dynamic(
         self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
@@ -636,6 +671,25 @@ def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
         ids = ids[kind.live(ids)]
         count += int(np.count_nonzero(kind.n_observers[ids] >= min_observers))
     return count
+
+
+def _rejected_features(
+    current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels,
+    from_reference: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The current frame's keypoints (P,) and lines (L,) matched to the reference that ``solution``
+    rejected and that are not labelled dynamic; none unless the pose came ``from_reference``."""
+    points = np.zeros(len(current.keypoints), dtype=bool)
+    lines = np.zeros(len(current.lines), dtype=bool)
+    if from_reference and solution.success:
+        points[matches.points.current[~solution.inliers.points & ~labels.point_dynamic]] = True
+        lines[matches.lines.current[~solution.inliers.lines & ~labels.line_dynamic]] = True
+    return points, lines
+
+
+def _static_observations(labels: DynamicLabels) -> ObservationMasks:
+    """The observations of the matched features not labelled dynamic."""
+    return ObservationMasks(~labels.point_dynamic, ~labels.line_dynamic, ~labels.line_dynamic)
 
 
 def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_mask: np.ndarray) -> DynamicLabels:
