@@ -52,8 +52,6 @@ VARIANTS = {
 }
 REAL = ("kitti_odometry/sequences/06", "kitti_raw/2011_09_26/2011_09_26_drive_0005_sync")
 HARD_SCENES = ("convoy", "crossing")
-SIZE = (640, 480)
-"""Image size of the generated sequences (`ensure_sequence` writes the default size)."""
 KEYFRAMES_AFTER_START = 5
 
 
@@ -67,7 +65,7 @@ def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
 
 def label_count_columns(dynamic: dict) -> dict:
     """The run's label counts (summed over frames) for pooling over sequences: flagged,
-    on moving objects, and both, for points and lines; None without masks."""
+    on moving objects, and both, for points and lines; the values are None without masks."""
     return {
         f"{kind} {count}": dynamic[kind][count]
         for kind in ("points", "lines")
@@ -167,7 +165,8 @@ def real(variants: list[str], extra: tuple[str, ...]) -> None:
 def parked_run(folder: Path, seed: int, extra: tuple[str, ...]) -> list[dict]:
     """One ``parked_then_moving`` run with both detectors: a row per car that pulled out (module docstring)."""
     sequence = open_sequence(folder)
-    watch = MoverLandmarks(build_scenario("parked_then_moving", len(sequence), SIZE, seed), KEYFRAMES_AFTER_START)
+    size = (sequence.camera.width, sequence.camera.height)
+    watch = MoverLandmarks(build_scenario("parked_then_moving", len(sequence), size, seed), KEYFRAMES_AFTER_START)
     system: System
 
     def on_record(record: FrameRecord) -> None:

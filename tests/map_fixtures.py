@@ -141,8 +141,10 @@ def make_keyframe(
     line_ids=None,
     point_dynamic=None,
     line_dynamic=None,
+    point_rejected=None,
+    line_rejected=None,
 ) -> KeyFrame:
-    """A keyframe of ``features``; ids default to -1 (no landmark), labels to static."""
+    """A keyframe of ``features``; ids default to -1 (no landmark), labels to static and not rejected."""
     n_points, n_lines = len(features.keypoints), len(features.lines)
 
     def ids(values, count):
@@ -168,6 +170,8 @@ def make_keyframe(
         line_ids=ids(line_ids, n_lines),
         point_dynamic=flags(point_dynamic, n_points),
         line_dynamic=flags(line_dynamic, n_lines),
+        point_rejected=flags(point_rejected, n_points),
+        line_rejected=flags(line_rejected, n_lines),
     )
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.eval.mover_landmarks import landmark_owner
+from pld_slam.eval.mover_landmarks import MoverLandmarks, landmark_owner, start_frames
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.synth import build_scenario, write_sequence
 from pld_slam.system import System
@@ -63,14 +63,16 @@ def test_no_point_landmark_made_on_the_convoy_outlives_its_judgement(convoy_runs
     world = build_scenario("convoy", FRAMES, SIZE, seed=0)
     world_map = system.local_mapping.map
     judged = sorted(world_map.keyframes)[:-2]
-    rendered = {}
-
-    def object_ids(frame):
-        if frame not in rendered:
-            rendered[frame] = world.render_views(frame)[0].object_id
-        return rendered[frame]
-
+    object_ids = MoverLandmarks(world).object_ids
     points = world_map.points
     old_alive = [p for p in np.flatnonzero(points.alive[: len(points)]) if points.first_keyframe[p] in judged]
     on_movers = [p for p in old_alive if (landmark_owner(world_map, points, p, object_ids) or 0) > 0]
     assert len(old_alive) > 500 and len(on_movers) <= 5, (len(old_alive), len(on_movers))
+
+
+def test_only_movers_that_rest_first_are_watched():
+    world = build_scenario("parked_then_moving", 40, (160, 120), seed=0)
+    starts = start_frames(world)
+    assert list(starts) == [1] and starts[1] > 5  # the first parked car pulls out; none moves from frame 0
+    convoy = build_scenario("convoy", 5, (160, 120), seed=0)
+    assert start_frames(convoy) == {}  # the convoy moves from the first frame: nothing rests first

@@ -179,6 +179,8 @@ def build_map(
                 line_ids=line_ids[seen_lines].copy(),
                 point_dynamic=np.zeros(len(seen_points), dtype=bool),
                 line_dynamic=np.zeros(len(seen_lines), dtype=bool),
+                point_rejected=np.zeros(len(seen_points), dtype=bool),
+                line_rejected=np.zeros(len(seen_lines), dtype=bool),
             )
         )
     outliers = outliers[:n_point_outliers]

@@ -86,6 +86,16 @@ def landmark_of(mapping: LocalMapping, keyframe_id: int, point: int) -> int:
 # --- landmark creation ----------------------------------------------------------------
 
 
+def test_features_whose_reference_match_the_pose_rejected_make_no_landmark():
+    mapping = local_mapping()
+    features = world_features(POSES[0], POINTS_W[:6], POINT_DESCRIPTORS[:6], LINES_W[:3], LINE_DESCRIPTORS[:3])
+    keyframe = make_keyframe(0, features, POSES[0], point_rejected=[1, 4], line_rejected=[2])
+    insertion = mapping.insert_keyframe(keyframe)
+    assert (insertion.created_points, insertion.created_lines) == (4, 2)
+    assert keyframe.point_ids.tolist() == [0, -1, 1, 2, -1, 3]
+    assert keyframe.line_ids.tolist() == [0, 1, -1]
+
+
 def test_the_first_keyframe_creates_a_landmark_from_every_static_stereo_point_and_line():
     mapping = local_mapping()
     features = world_features(

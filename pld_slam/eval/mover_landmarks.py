@@ -66,11 +66,11 @@ class MoverLandmarks:
 
     world: Scenario
     keyframes_after: int = 5
-    owners: tuple[dict[int, int], dict[int, int]] = field(default_factory=lambda: ({}, {}))
+    owners: tuple[dict[int, int], dict[int, int]] = field(init=False, default_factory=lambda: ({}, {}))
     starts: dict[int, int] = field(init=False)
     keyframes_since_start: dict[int, int] = field(init=False)
-    alive_after: dict[int, tuple[int, int]] = field(default_factory=dict)
-    rendered: dict[int, np.ndarray] = field(default_factory=dict)
+    alive_after: dict[int, tuple[int, int]] = field(init=False, default_factory=dict)
+    rendered: dict[int, np.ndarray] = field(init=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         self.starts = start_frames(self.world)

@@ -82,7 +82,7 @@ from pld_slam.tracking.local_map import (
     observed_landmarks,
     track_local_map,
 )
-from pld_slam.tracking.relocalisation import match_without_prior, pnp_pose
+from pld_slam.tracking.relocalisation import pose_without_prior
 
 
 @dataclass(frozen=True)
@@ -113,11 +113,8 @@ def geometric_check(
     """Locate ``keyframe`` in the candidate's local map (module docstring); None when PnP finds no pose."""
     present = present_landmarks(world_map, keyframe)
     points = local_map_of(world_map, (candidate.id,), present).points
-    matches = match_without_prior(keyframe.features.keypoints, points.descriptors, config.tracking.max_point_distance)
-    if len(matches) < config.loop.min_inliers:
-        return None
-    keypoints = keyframe.features.keypoints
-    found = pnp_pose(camera, points.geometry[matches.previous], keypoints.uv[matches.current], config.system.seed)
+    found = pose_without_prior(camera, keyframe.features.keypoints, points.geometry, points.descriptors, config,
+                               min_matches=config.loop.min_inliers)
     if found is None:
         return None
     local_map = local_map_of(world_map, around(world_map, candidate), present)

@@ -27,7 +27,7 @@ class KeyFrame:
         this frame: they never become landmarks.
     point_rejected, line_rejected : (P,), (L,) bool, keypoints and lines matched to the
         reference frame whose match the frame's pose rejected: they do not become landmarks
-        either (`pld_slam.mapping.local_mapping`, step 3); None for none.
+        either (`pld_slam.mapping.local_mapping`, step 3).
     """
 
     id: int
@@ -40,8 +40,8 @@ class KeyFrame:
     line_ids: np.ndarray
     point_dynamic: np.ndarray
     line_dynamic: np.ndarray
-    point_rejected: np.ndarray | None = None
-    line_rejected: np.ndarray | None = None
+    point_rejected: np.ndarray
+    line_rejected: np.ndarray
 
     @property
     def T_w_c(self) -> np.ndarray:

@@ -175,14 +175,13 @@ class LocalMapping:
         T_w_c = keyframe.T_w_c
         features = keyframe.features
         stereo = np.arange(len(keyframe.point_ids)) < features.keypoints.n_stereo
-        new_points = np.flatnonzero(stereo & (keyframe.point_ids < 0) & ~keyframe.point_dynamic
-                                    & ~_or_none(keyframe.point_rejected, len(stereo)))
+        unmapped = (keyframe.point_ids < 0) & ~keyframe.point_dynamic & ~keyframe.point_rejected
+        new_points = np.flatnonzero(stereo & unmapped)
         point_ids = self.map.create_landmarks(
             self.map.points, keyframe, new_points, transform_points(T_w_c, features.points.points_c[new_points]),
             features.points.descriptors[new_points],
         )
-        new_lines = np.flatnonzero((keyframe.line_ids < 0) & ~keyframe.line_dynamic
-                                   & ~_or_none(keyframe.line_rejected, len(keyframe.line_ids)))
+        new_lines = np.flatnonzero((keyframe.line_ids < 0) & ~keyframe.line_dynamic & ~keyframe.line_rejected)
         endpoints_c = features.lines.endpoints_c[new_lines].reshape(-1, 3)
         line_ids = self.map.create_landmarks(
             self.map.lines, keyframe, new_lines, transform_points(T_w_c, endpoints_c).reshape(-1, 2, 3),
@@ -281,8 +280,3 @@ def _live_ids(kind: Landmarks, ids: np.ndarray) -> np.ndarray:
     """The distinct live landmark ids among ``ids`` (which may hold -1), ascending."""
     ids = np.unique(ids[ids >= 0])
     return ids[kind.alive[ids]]
-
-
-def _or_none(mask: np.ndarray | None, n: int) -> np.ndarray:
-    """``mask`` (n,) bool, or all False for None."""
-    return np.zeros(n, dtype=bool) if mask is None else mask

@@ -130,7 +130,6 @@ class ObservationMasks:
                                 self.line_horizontal & other.line_horizontal)
 
 
-
 class RowEvaluation(NamedTuple):
     """Whitened residual rows evaluated at their poses and landmarks.
 

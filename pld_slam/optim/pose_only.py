@@ -422,12 +422,27 @@ def _result_at(
 ) -> PoseOnlyResult:
     """The result at ``T_c_w``: chi2 of every observation in ``evaluation`` (of ``every_row`` there) and the inliers."""
     point_chi2, vertical_chi2, horizontal_chi2 = every_row.chi2(evaluation)
+    inliers = chi2_inliers(every_row, point_chi2, vertical_chi2, horizontal_chi2, lines, options)
+    return PoseOnlyResult(T_c_w, status, point_chi2, vertical_chi2, horizontal_chi2, inliers, nfev, rounds)
+
+
+def chi2_inliers(
+    every_row: WhitenedRows,
+    point_chi2: np.ndarray,
+    vertical_chi2: np.ndarray,
+    horizontal_chi2: np.ndarray,
+    lines: LineObservations,
+    options: PoseOnlyOptions,
+) -> ObservationMasks:
+    """The observations whose chi2 (`WhitenedRows.chi2` of ``every_row``: points (N,), the vertical
+    (M,) and horizontal (M,) line terms) passes the bound of its dof; with the vertical term
+    switched off, every line that projects."""
     line_inliers = (
         every_row.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
         if options.use_line_vertical
         else np.isfinite(vertical_chi2)
     )
-    inliers = ObservationMasks(
+    return ObservationMasks(
         points=every_row.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
         lines=line_inliers,
         line_horizontal=line_inliers
@@ -435,4 +450,3 @@ def _result_at(
         & options.use_line_horizontal
         & (horizontal_chi2 <= options.chi2_line),
     )
-    return PoseOnlyResult(T_c_w, status, point_chi2, vertical_chi2, horizontal_chi2, inliers, nfev, rounds)

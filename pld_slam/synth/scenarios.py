@@ -1,4 +1,4 @@
-"""The six synthetic scenarios: a camera path, the street built along it, and its movers.
+"""The nine synthetic scenarios: a camera path, the street built along it, and its movers.
 
 - ``static``: a street with gentle curves: buildings on both sides, parked cars, poles,
   crates; the camera drives in the right lane at 8 m/s (0.8 m per frame at 10 Hz) with a
@@ -40,6 +40,14 @@
   a loop detector must accept nothing here. The 40 m between the lane centres leave
   26 m between the facades of the two rows of buildings inside the block, for buildings
   8-14 m deep.
+- ``convoy``, ``crossing``, ``parked_then_moving``: the street of ``static`` with movers a
+  robust solve follows (the dynamic-scenes issue): a bus alongside and a truck and a car
+  ahead driving at our varying speed (`convoy_traffic`, 27-39 % of the image); the camera
+  stopping at a junction every 19 s while a crowd of 60 crosses, most of it one way
+  (`crossing_crowd`, 20-30 %); cars parked long enough to enter the map that pull out
+  when we are 20 m behind (`parked_movers`). The masks mark an object at the frames it
+  moves (`pld_slam.synth.scene.MovingObject.moves_at`): a parked car or a waiting
+  pedestrian is part of the static scene until it sets off.
 
 Conventions (see `pld_slam.synth.scene`): the world is the first left camera (x right,
 y down, z forward), the ground is the plane ``y = CAMERA_HEIGHT``. Positions along a path
@@ -781,10 +789,11 @@ def convoy_traffic(path: Path, camera_s: np.ndarray, times: np.ndarray, seed: in
 
     - a bus in the lane to our left, its middle 1 m behind to 8 m ahead of the camera (a sine of
       16-20 s): alongside and just ahead it fills the left half of the image;
-    - a queue ahead in our lane: a truck whose middle is 8.5-11.5 m ahead, a car 7 m
-      further, the gap breathing over 6-9 s.
+    - a queue ahead in our lane: a truck whose middle is 8.5-11.5 m ahead, a car 2.5 m
+      behind its tail, the gap breathing over 6-9 s.
 
-    Together they cover 30-45 % of a frame (seeds 0-2), for the whole sequence.
+    Together they cover 27-39 % of a frame (seeds 0-2, every 5th frame at 320x240), for the
+    whole sequence.
 
     To a robust solve their features say "the camera stands still": a coherent group
     beside the static scene's, as large or larger.
@@ -1023,7 +1032,7 @@ def convoy_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
 
 def crossing_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
     """Camera poses and scene of ``crossing``: the street of ``static``, the camera stopping
-    at a junction every 16 s (`CROSSING_CYCLE`) while a crowd crosses (`crossing_crowd`)."""
+    at a junction every 19 s (`CROSSING_CYCLE`) while a crowd crosses (`crossing_crowd`)."""
     s = arc_lengths(times, crossing_speed)
     s_end = s[-1] + VIEW_AHEAD
     path = street_path(seed, -PATH_BEHIND, s_end + 10.0)

@@ -98,9 +98,13 @@ def pose_without_prior(
     points_w: np.ndarray,
     descriptors: np.ndarray,
     config: Config,
+    min_matches: int = MIN_PNP_INLIERS,
 ) -> PnpPose | None:
-    """The frame's pose from map points (N, 3) with descriptors (N, 32), without a prior (module docstring)."""
+    """The frame's pose from map points (N, 3) with descriptors (N, 32), without a prior (module
+    docstring); None without ``min_matches`` descriptor matches to try PnP on."""
     matches = match_without_prior(keypoints, descriptors, config.tracking.max_point_distance)
+    if len(matches) < min_matches:
+        return None
     return pnp_pose(camera, points_w[matches.previous], keypoints.uv[matches.current], config.system.seed)
 
 

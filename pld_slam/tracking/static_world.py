@@ -67,7 +67,13 @@ from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, rotation_angle, transform_points
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations, WhitenedRows
-from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose, optimize_pose_rejecting_outliers
+from pld_slam.optim.pose_only import (
+    PoseOnlyOptions,
+    PoseOnlyResult,
+    chi2_inliers,
+    optimize_pose,
+    optimize_pose_rejecting_outliers,
+)
 
 HYPOTHESES = 200
 """RANSAC hypotheses per motion: at least one of 200 triples lies wholly in a group of a
@@ -112,8 +118,8 @@ def stereo_point_chi2(camera: StereoCamera, motions: np.ndarray, points: PointOb
     rows = WhitenedRows.of(tiled, LineObservations.empty(), LineObservations.empty())
     evaluation = rows.evaluate(camera, motions, np.eye(4), options.min_depth,
                                point_pose=np.repeat(np.arange(n_motions), n_points))
-    chi2, _, _ = rows.chi2(evaluation)
-    passed = rows.point_inliers(chi2, options.chi2_point, options.chi2_monocular_point)
+    chi2, vertical_chi2, horizontal_chi2 = rows.chi2(evaluation)
+    passed = chi2_inliers(rows, chi2, vertical_chi2, horizontal_chi2, LineObservations.empty(), options).points
     return chi2.reshape(n_motions, n_points), passed.reshape(n_motions, n_points)
 
 
@@ -133,7 +139,7 @@ def refined_motion(camera: StereoCamera, T_c_r: np.ndarray, points: PointObserva
 def dominant_motion(camera: StereoCamera, points: PointObservations, among: np.ndarray, rng: np.random.Generator,
                     options: PoseOnlyOptions) -> Motion | None:
     """The motion with the most inliers ``among`` the point matches (N,) bool (module docstring,
-    step 2), refined on them; None with fewer than three stereo matches."""
+    step 3), refined on them; None with fewer than three stereo matches."""
     stereo = among & np.isfinite(points.stereo_px[:, 2]) & (points.stereo_px[:, 0] - points.stereo_px[:, 2] > 0.0)
     candidates = np.flatnonzero(stereo)
     if len(candidates) < 3:
@@ -156,7 +162,7 @@ def least_support(n_matches: int, config: Config) -> float:
 def coherent_motions(camera: StereoCamera, points: PointObservations, n_matches: int, options: PoseOnlyOptions,
                      config: Config) -> list[Motion]:
     """The (up to) two largest coherent motions of the point matches with `least_support`,
-    the larger first (module docstring, step 2)."""
+    the larger first (module docstring, step 3)."""
     rng = np.random.default_rng(config.system.seed)
     motions: list[Motion] = []
     remaining = np.ones(len(points.sigma_px), dtype=bool)
@@ -202,10 +208,10 @@ def background_motion(motions: list[Motion], points: PointObservations) -> Motio
 
 def line_inliers_at(camera: StereoCamera, T_c_r: np.ndarray, lines: LineObservations,
                     options: PoseOnlyOptions) -> np.ndarray:
-    """Whether each line observation (M,) passes the pose solve's test of its vertical term at ``T_c_r``."""
-    rows = WhitenedRows.of(PointObservations.empty(), lines, LineObservations.empty())
-    _, vertical_chi2, _ = rows.chi2(rows.evaluate(camera, T_c_r, T_c_r, options.min_depth))
-    return rows.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
+    """Whether each line observation (M,) passes the pose solve's test at ``T_c_r`` (`chi2_inliers`)."""
+    rows = WhitenedRows.of(PointObservations.empty(), lines, lines)
+    chi2 = rows.chi2(rows.evaluate(camera, T_c_r, T_c_r, options.min_depth))
+    return chi2_inliers(rows, *chi2, lines, options).lines
 
 
 def outlier_count(solution: PoseOnlyResult) -> int:

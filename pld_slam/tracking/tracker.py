@@ -250,21 +250,22 @@ class Tracker:
                 within=_static_observations(labels),
             )
             clock.lap("pose")
-        solution = self._without_dynamic(solution, points, lines, labels)
+        if moving_mask is None:
+            solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
         point_dynamic, line_dynamic = _dynamic_features(features, kept, labels)
         counts = _counts(matched, kept, labels, solution)
         min_inliers = self._config.tracking.min_inliers
         tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
+        tracked_by_reference = tracked
         T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._T_w_p @ inverse(self._velocity)
         map_tracking = None
         recovered = False
         if self._local_map is not None:
-            detectors = moving_mask is None and (self._config.dynamic.grid or self._config.dynamic.llg)
             map_tracking = track_local_map(
                 self._camera, inverse(T_w_c), self._local_map, features, point_dynamic, line_dynamic,
                 self._config, self._pose_options, self._reference_matches(kept, solution, labels),
-                check_static_world=detectors and tracked and not widened,
+                check_static_world=moving_mask is None and self._detectors_on and tracked and not widened,
             )
             suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
             if suspect and not self._predicted(map_tracking, widened):
@@ -288,9 +289,15 @@ class Tracker:
         status = _status(tracked, recovered)
         self._prior_trusted = status is TrackingStatus.TRACKED
         keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
-        rejected = _rejected_features(features, kept, solution, labels, status is TrackingStatus.TRACKED)
+        from_reference = tracked_by_reference and status is TrackingStatus.TRACKED
+        rejected = _rejected_features(features, kept, solution, labels, from_reference)
         return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
                             point_dynamic, line_dynamic, *rejected)
+
+    @property
+    def _detectors_on(self) -> bool:
+        """Whether either dynamic detector is switched on."""
+        return self._config.dynamic.grid or self._config.dynamic.llg
 
     def _first_frame(self, features: StereoFeatures, moving_mask: np.ndarray | None) -> TrackedFrame:
         """The first frame: the world (``T_w_c = I``) and the first keyframe. Without a motion
@@ -601,12 +608,12 @@ class Tracker:
         self, features: StereoFeatures, kept: _FrameMatches, points: PointObservations, lines: LineObservations,
         solution: PoseOnlyResult, T_c_r_predicted: np.ndarray, widened: bool,
     ) -> tuple[PoseOnlyResult, DynamicLabels]:
-        """The robust ``solution``, or the frame solved for the static world's motion where two
-        coherent motions compete (`static_world`), and the dynamic labels judged against it
+        """The robust ``solution``, or the frame solved for the static world's motion where the
+        solve is suspect (`static_world`), and the dynamic labels judged against it
         (with the points found moving there). The motion model is trusted when the last frame
         was tracked normally and this one's guided search did not have to widen. Both detectors
         off: ``solution`` and no labels."""
-        if solution.success and (self._config.dynamic.grid or self._config.dynamic.llg):
+        if solution.success and self._detectors_on:
             static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
                                            self._prior_trusted and not widened, self._pose_options, self._config)
             solution = static.solution
@@ -622,22 +629,14 @@ class Tracker:
         rejection rounds have done the rest); ``solution`` itself when nothing is dynamic."""
         if not (labels.point_dynamic.any() or labels.line_dynamic.any()):
             return solution
-        include = ObservationMasks(
-            points=solution.inliers.points & ~labels.point_dynamic,
-            lines=solution.inliers.lines & ~labels.line_dynamic,
-            line_horizontal=solution.inliers.line_horizontal & ~labels.line_dynamic,
-        )
+        include = solution.inliers & _static_observations(labels)
         refined = optimize_pose(
             self._camera, solution.T_c_w, points=points, lines=lines, options=self._pose_options,
             include=include, robust=False,
         )
         if not refined.success:
             return solution
-        inliers = ObservationMasks(
-            refined.inliers.points & include.points,
-            refined.inliers.lines & include.lines,
-            refined.inliers.line_horizontal & include.line_horizontal,
-        )
+        inliers = refined.inliers & include
         return dataclasses.replace(refined, inliers=inliers)
 
 
