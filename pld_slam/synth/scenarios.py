@@ -1055,6 +1055,14 @@ def parked_then_moving_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, 
     return camera_poses(path, s, period=120.0), make_scene(static, palette, moving=movers)
 
 
+TRAFFIC_WORLDS: dict[str, Callable[[np.ndarray, int], tuple[np.ndarray, Scene]]] = {
+    "convoy": convoy_world,
+    "crossing": crossing_world,
+    "parked_then_moving": parked_then_moving_world,
+}
+"""The scenarios of movers a robust solve follows, each built from the frame times and the seed."""
+
+
 def street_world(name: str, times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
     """Camera poses and scene of ``static``, ``dynamic`` or ``lowtexture`` at frame
     ``times`` (N,) [s]: along a gently curved street."""
@@ -1087,12 +1095,8 @@ def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int]
         poses, scene = two_lap_world(frames, seed)
     elif name == "nearmiss":
         poses, scene = nearmiss_world(frames, seed)
-    elif name == "convoy":
-        poses, scene = convoy_world(times, seed)
-    elif name == "crossing":
-        poses, scene = crossing_world(times, seed)
-    elif name == "parked_then_moving":
-        poses, scene = parked_then_moving_world(times, seed)
+    elif name in TRAFFIC_WORLDS:
+        poses, scene = TRAFFIC_WORLDS[name](times, seed)
     else:
         poses, scene = street_world(name, times, seed)
     return Scenario(name=name, seed=seed, camera=camera, poses=poses, timestamps=times, scene=scene)

@@ -100,6 +100,16 @@ def disc(texels: np.ndarray, centre: tuple[float, float], radius: float, value: 
     texels[r0:r1, c0:c1][inside] = value
 
 
+def wheels(texels: np.ndarray, axles: Sequence[float], radius: float, hub_ratio: float, hub_value: float) -> None:
+    """Tyres of ``radius`` [texels] standing on the bottom edge of a vehicle flank, at ``axles``
+    (fractions of the width), each with a hub of ``hub_ratio`` times the radius and grey ``hub_value``."""
+    height, width = texels.shape
+    for axle in axles:
+        centre = (axle * width, height - radius)
+        disc(texels, centre, radius, 30.0)
+        disc(texels, centre, hub_ratio * radius, hub_value)
+
+
 def vertical_gradient(rows: int, top: float, bottom: float) -> np.ndarray:
     """A column (rows, 1) going linearly from ``top`` to ``bottom`` grey levels."""
     return np.linspace(top, bottom, rows, dtype=np.float32)[:, None]
@@ -326,11 +336,7 @@ def car_side(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture:
         c = handle * shape[1]
         fill(texels, (c, 0.45 * shape[0], c + 0.12 * per_m_x, 0.48 * shape[0]), 90.0)
     fill(texels, (0, 0.6 * shape[0], shape[1], 0.63 * shape[0]), 120.0)
-    wheel = 0.33 * per_m_y
-    for axle in (0.17, 0.83):
-        centre = (axle * shape[1], shape[0] - wheel)
-        disc(texels, centre, wheel, 30.0)
-        disc(texels, centre, 0.55 * wheel, 150.0)
+    wheels(texels, (0.17, 0.83), 0.33 * per_m_y, 0.55, 150.0)
     return Texture(texels, size_m)
 
 
@@ -349,11 +355,7 @@ def truck_side(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture
     band = rng.uniform(60, 120)
     fill(texels, (cab + 0.4 * per_m_x, 0.25 * shape[0], shape[1] - 0.4 * per_m_x, 0.4 * shape[0]), band)
     fill(texels, (0, 0.75 * shape[0], shape[1], 0.78 * shape[0]), 60.0)
-    wheel = 0.5 * per_m_y
-    for axle in (0.12, 0.7, 0.85):
-        centre = (axle * shape[1], shape[0] - wheel)
-        disc(texels, centre, wheel, 30.0)
-        disc(texels, centre, 0.5 * wheel, 140.0)
+    wheels(texels, (0.12, 0.7, 0.85), 0.5 * per_m_y, 0.5, 140.0)
     return Texture(texels, size_m)
 
 
@@ -375,11 +377,7 @@ def bus_side(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture:
         outline(texels, (door * shape[1], 0.12 * shape[0], door * shape[1] + 1.1 * per_m_x, 0.9 * shape[0]),
                 4.0, 50.0)
     fill(texels, (0, 0.9 * shape[0], shape[1], 0.93 * shape[0]), 60.0)
-    wheel = 0.45 * per_m_y
-    for axle in (0.2, 0.8):
-        centre = (axle * shape[1], shape[0] - wheel)
-        disc(texels, centre, wheel, 30.0)
-        disc(texels, centre, 0.5 * wheel, 140.0)
+    wheels(texels, (0.2, 0.8), 0.45 * per_m_y, 0.5, 140.0)
     return Texture(np.clip(texels, 0.0, 255.0), size_m)
 
 

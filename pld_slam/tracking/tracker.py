@@ -247,6 +247,7 @@ class Tracker:
             )
             clock.lap("pose")
             solution, labels = self._detect_dynamic(features, kept, points, lines, solution, T_c_r_predicted, widened)
+            solution = self._without_dynamic(solution, points, lines, labels)
         else:
             labels = _labels_from_mask(features, kept, moving_mask)
             solution = optimize_pose_rejecting_outliers(
@@ -254,8 +255,6 @@ class Tracker:
                 within=_static_observations(labels),
             )
             clock.lap("pose")
-        if moving_mask is None:
-            solution = self._without_dynamic(solution, points, lines, labels)
         clock.lap("dynamic")
         point_dynamic, line_dynamic = _dynamic_features(features, kept, labels)
         counts = _counts(matched, kept, labels, solution)
@@ -324,20 +323,23 @@ class Tracker:
         (module docstring)."""
         if from_scratch.tracked_landmarks <= guided.tracked_landmarks:
             return False
-        if widened or not self._prior_trusted or not self._map_tracked(guided):
-            return True
-        T_c_w_predicted = self._velocity @ inverse(self._T_w_p)
-        return (motion_model_distance(from_scratch.solution.T_c_w, T_c_w_predicted, self._config)
-                <= motion_model_distance(guided.solution.T_c_w, T_c_w_predicted, self._config))
+        guided_distance = self._distance_from_prediction(guided, widened)
+        return guided_distance is None or self._distance_from_prediction(from_scratch, widened) <= guided_distance
 
     def _predicted(self, map_tracking: LocalMapTracking, widened: bool) -> bool:
         """Whether the local map confirmed the pose a trusted motion model predicted (within its
-        expected error, `static_world.motion_model_distance`): then tracking few landmarks is
-        no sign that the prior was wrong (module docstring)."""
+        expected error): then tracking few landmarks is no sign that the prior was wrong (module docstring)."""
+        distance = self._distance_from_prediction(map_tracking, widened)
+        return distance is not None and distance <= 1.0
+
+    def _distance_from_prediction(self, map_tracking: LocalMapTracking, widened: bool) -> float | None:
+        """How far the local map's pose lies from the motion model's prediction, in units of the model's
+        expected error (`static_world.motion_model_distance`); None when the model is not trusted (the
+        last frame not tracked normally, or this frame's guided search widened) or the map gave no pose."""
         if widened or not self._prior_trusted or not self._map_tracked(map_tracking):
-            return False
+            return None
         T_c_w_predicted = self._velocity @ inverse(self._T_w_p)
-        return motion_model_distance(map_tracking.solution.T_c_w, T_c_w_predicted, self._config) <= 1.0
+        return motion_model_distance(map_tracking.solution.T_c_w, T_c_w_predicted, self._config)
 
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
@@ -629,13 +631,13 @@ class Tracker:
         (with the points found moving there). The motion model is trusted when the last frame
         was tracked normally and this one's guided search did not have to widen. Both detectors
         off: ``solution`` and no labels."""
+        moving = np.zeros(len(points.sigma_px), dtype=bool)
         if solution.success and self._detectors_on:
             static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
                                            self._prior_trusted and not widened, self._pose_options, self._config)
-            solution = static.solution
-            labels = self._label_dynamic(self._reference, features, kept, solution)
-            return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | static.moving)
-        return solution, self._label_dynamic(self._reference, features, kept, solution)
+            solution, moving = static.solution, static.moving
+        labels = self._label_dynamic(self._reference, features, kept, solution)
+        return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | moving)
 
     def _without_dynamic(
         self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
