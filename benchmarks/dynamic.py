@@ -18,7 +18,9 @@ Sections (``--section``, all by default):
   when found through ``$PLD_SLAM_DATA``; the detection ms there is the cost per KITTI frame.
 - ``parked``: synthetic ``parked_then_moving`` on ``--seeds`` with both detectors: the
   landmarks each parked car gave the map before it pulled out, and how many of them are
-  still alive at the 5th keyframe after it started moving (figure: none). A landmark
+  still alive at the 5th keyframe after it started moving (figure: none); also those
+  made on it while it moved (features the detectors missed) that local mapping has had
+  time to judge and still keeps. A landmark
   belongs to the object whose surface its creating feature lay on (the renderer's object
   ids at that keyframe's frame; `pld_slam.eval.mover_landmarks`).
 
@@ -190,9 +192,10 @@ def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
     print(f"\nparked_then_moving, both detectors: landmarks on each car that pulled out, and those alive "
           f"{KEYFRAMES_AFTER_START} keyframes after it started (NaN: the run ended first)")
     print(table.to_string(index=False), flush=True)
-    alive = table.filter(like="alive").to_numpy(dtype=float)
-    print(f"alive at KF+{KEYFRAMES_AFTER_START} in all: {int(np.nansum(alive))} "
-          f"(of {int(table[['points made', 'lines made']].to_numpy().sum())} made on them)")
+    made = int(table[["points made", "lines made"]].to_numpy().sum())
+    for group in ("at rest", "moving"):
+        alive = int(np.nansum(table.filter(like=f"made {group}, alive").to_numpy(dtype=float)))
+        print(f"made {group}, alive at KF+{KEYFRAMES_AFTER_START} in all: {alive} (of {made} made on them)")
 
 
 def main() -> None:

@@ -65,6 +65,13 @@ class StereoCamera:
             [self.fx * p_c[:, 0] / z + self.cx, self.fy * p_c[:, 1] / z + self.cy]
         )
 
+    def inside_image(self, pixels: np.ndarray) -> np.ndarray:
+        """Whether pixels (N, 2) lie inside the image (N,) bool."""
+        return (
+            (pixels[:, 0] >= 0.0) & (pixels[:, 0] <= self.width - 1.0)
+            & (pixels[:, 1] >= 0.0) & (pixels[:, 1] <= self.height - 1.0)
+        )
+
     def project_stereo(self, p_c: np.ndarray) -> np.ndarray:
         """Stereo pixels ``(u_left, v, u_right)`` (N, 3) of points (N, 3) in the left camera."""
         uv = self.project(p_c)

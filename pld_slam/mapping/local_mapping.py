@@ -67,6 +67,8 @@ _SECOND_NEIGHBOURS = 5
 """Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
 _RECENT_KEYFRAMES = 3
 """A landmark stays on the recent list for this many keyframes after its creation (ORB-SLAM2: 3)."""
+JUDGEMENT_AGE = 2
+"""Keyframes after its creation at which a new landmark's observations must weigh enough (step 2)."""
 
 
 @dataclass(frozen=True)
@@ -157,7 +159,8 @@ class LocalMapping:
             age = keyframe.id - kind.first_keyframe[recent]
             visible, found = kind.visible[recent], kind.found[recent]
             rarely_found = (visible > 0) & (found < config.min_found_ratio * visible)
-            unconfirmed = (age >= 2) & (self.map.observation_weights(kind, recent) < config.min_observation_weight)
+            weights = self.map.observation_weights(kind, recent)
+            unconfirmed = (age >= JUDGEMENT_AGE) & (weights < config.min_observation_weight)
             doomed = recent[rarely_found | unconfirmed]
             moving = np.flatnonzero(
                 kind.alive & (kind.dynamic_hits >= config.dynamic_hits) & (kind.dynamic_hits >= kind.found)

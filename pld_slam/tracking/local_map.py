@@ -258,7 +258,7 @@ def match_map_points(
     nearest = points.max_distance / scale ** (levels - 1)
     visible = (
         in_front
-        & _inside_image(camera, stereo_px[:, :2])
+        & camera.inside_image(stereo_px[:, :2])
         & (distance >= _NEAREST_SCALE * nearest)
         & (distance <= _FARTHEST_SCALE * points.max_distance)
         & _within_viewing_angle(T_c_w, points.geometry, points.normals, config.mapping.max_viewing_angle)
@@ -287,7 +287,7 @@ def match_map_lines(
     midpoints = lines.geometry.mean(axis=1)
     visible = (
         in_front
-        & _inside_image(camera, 0.5 * (predicted[:, :2] + predicted[:, 2:]))
+        & camera.inside_image(0.5 * (predicted[:, :2] + predicted[:, 2:]))
         & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle)
     )
     matches = match_predicted_segments(
@@ -382,14 +382,6 @@ def _map_observations(
     once[first_of_landmark] = True
     keep &= once
     return _MapObservations(current[keep], landmarks[keep], geometry[keep])
-
-
-def _inside_image(camera: StereoCamera, pixels: np.ndarray) -> np.ndarray:
-    """Whether pixels (N, 2) lie inside the image (N,)."""
-    return (
-        (pixels[:, 0] >= 0.0) & (pixels[:, 0] <= camera.width - 1.0)
-        & (pixels[:, 1] >= 0.0) & (pixels[:, 1] <= camera.height - 1.0)
-    )
 
 
 def _within_viewing_angle(
