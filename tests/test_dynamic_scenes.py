@@ -6,13 +6,14 @@ robust solve alone follows them, the detectors (with the static-world check of
 """
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.eval.mover_landmarks import MoverLandmarks, landmark_owner, start_frames
+from pld_slam.eval.mover_landmarks import LandmarkOrigin, MoverLandmarks, landmark_owner, start_frames
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.synth import build_scenario, write_sequence
 from pld_slam.system import System
@@ -76,3 +77,19 @@ def test_only_movers_that_rest_first_are_watched():
     assert list(starts) == [1] and starts[1] > 5  # the first parked car pulls out; none moves from frame 0
     convoy = build_scenario("convoy", 5, (160, 120), seed=0)
     assert start_frames(convoy) == {}  # the convoy moves from the first frame: nothing rests first
+
+
+def test_landmarks_of_a_mover_are_counted_by_when_they_were_made():
+    """Made at rest: counted alive or not; made while moving: only once judged (two keyframes old)."""
+    world = build_scenario("parked_then_moving", 40, (160, 120), seed=0)
+    watch = MoverLandmarks(world)
+    mover, start = next(iter(watch.starts.items()))
+    made = {0: (mover, start - 5, 1), 1: (mover, start - 1, 2), 2: (mover, start, 3), 3: (mover, start + 2, 4),
+            4: (mover + 1, start - 5, 1)}
+    for landmark, (owner, frame, rank) in made.items():
+        watch.made[0][landmark] = LandmarkOrigin(owner, frame, rank)
+    watch.keyframes_seen = 5  # landmark 2 (rank 3) is judged, landmark 3 (rank 4) not yet
+    alive = np.array([True, False, True, True, True])
+    world_map = SimpleNamespace(kinds=(SimpleNamespace(alive=alive), SimpleNamespace(alive=np.zeros(0, bool))))
+    assert watch.alive_by_group(world_map, mover, start) == {"at rest": (1, 0), "moving": (1, 0)}
+    assert watch.made_on(mover) == (4, 0)

@@ -64,7 +64,7 @@ def landmark_owner(
 
 
 @dataclass(frozen=True)
-class _Made:
+class LandmarkOrigin:
     """Where and when one landmark was made: the object under its feature, the frame and
     the keyframe's rank among those the watch has seen."""
 
@@ -85,7 +85,9 @@ class MoverLandmarks:
 
     world: Scenario
     keyframes_after: int = 5
-    made: tuple[dict[int, _Made], dict[int, _Made]] = field(init=False, default_factory=lambda: ({}, {}))
+    made: tuple[dict[int, LandmarkOrigin], dict[int, LandmarkOrigin]] = field(
+        init=False, default_factory=lambda: ({}, {})
+    )
     starts: dict[int, int] = field(init=False)
     keyframes_since_start: dict[int, int] = field(init=False)
     alive_after: dict[int, dict[str, tuple[int, int]]] = field(init=False, default_factory=dict)
@@ -105,17 +107,13 @@ class MoverLandmarks:
             for landmark in np.flatnonzero(kind.first_keyframe[: len(kind)] == keyframe_id).tolist():
                 owner = landmark_owner(world_map, kind, landmark, self.object_ids)
                 if owner is not None:
-                    made[landmark] = _Made(owner, frame, self.keyframes_seen)
+                    made[landmark] = LandmarkOrigin(owner, frame, self.keyframes_seen)
         for mover, start in self.starts.items():
             if frame < start or mover in self.alive_after:
                 continue
             self.keyframes_since_start[mover] += 1
             if self.keyframes_since_start[mover] == self.keyframes_after:
-                self.alive_after[mover] = {
-                    "at rest": self.alive(world_map, lambda m: m.owner == mover and m.frame < start),
-                    "moving": self.alive(world_map, lambda m: m.owner == mover and m.frame >= start
-                                         and m.rank <= self.keyframes_seen - JUDGEMENT_AGE),
-                }
+                self.alive_after[mover] = self.alive_by_group(world_map, mover, start)
 
     def object_ids(self, frame: int) -> np.ndarray:
         """The renderer's object id of every left pixel (H, W) of ``frame`` (rendered once)."""
@@ -128,8 +126,17 @@ class MoverLandmarks:
         points, lines = (sum(m.owner == mover for m in made.values()) for made in self.made)
         return points, lines
 
-    def alive(self, world_map: Map, chosen: Callable[[_Made], bool]) -> tuple[int, int]:
-        """Points and lines alive in ``world_map`` now among those whose `_Made` is ``chosen``."""
+    def alive_by_group(self, world_map: Map, mover: int, start: int) -> dict[str, tuple[int, int]]:
+        """Points and lines of ``mover`` (which started at frame ``start``) alive now: those made
+        at rest, and those made while it moved that are at least `JUDGEMENT_AGE` keyframes old."""
+        judged = self.keyframes_seen - JUDGEMENT_AGE
+        return {
+            "at rest": self.alive(world_map, lambda m: m.owner == mover and m.frame < start),
+            "moving": self.alive(world_map, lambda m: m.owner == mover and m.frame >= start and m.rank <= judged),
+        }
+
+    def alive(self, world_map: Map, chosen: Callable[[LandmarkOrigin], bool]) -> tuple[int, int]:
+        """Points and lines alive in ``world_map`` now among those whose `LandmarkOrigin` is ``chosen``."""
         points, lines = (
             sum(bool(kind.alive[landmark]) for landmark, m in made.items() if chosen(m))
             for kind, made in zip(world_map.kinds, self.made)
