@@ -192,10 +192,10 @@ def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
     print(f"\nparked_then_moving, both detectors: landmarks on each car that pulled out, and those alive "
           f"{KEYFRAMES_AFTER_START} keyframes after it started (NaN: the run ended first)")
     print(table.to_string(index=False), flush=True)
-    made = int(table[["points made", "lines made"]].to_numpy().sum())
+    print(f"landmarks made on the cars that pulled out: {int(table[['points made', 'lines made']].to_numpy().sum())}")
     for group in ("at rest", "moving"):
         alive = int(np.nansum(table.filter(like=f"made {group}, alive").to_numpy(dtype=float)))
-        print(f"made {group}, alive at KF+{KEYFRAMES_AFTER_START} in all: {alive} (of {made} made on them)")
+        print(f"made {group}, alive at KF+{KEYFRAMES_AFTER_START}: {alive}")
 
 
 def main() -> None:
