@@ -65,11 +65,11 @@ class StereoCamera:
             [self.fx * p_c[:, 0] / z + self.cx, self.fy * p_c[:, 1] / z + self.cy]
         )
 
-    def inside_image(self, pixels: np.ndarray) -> np.ndarray:
-        """Whether pixels (N, 2) lie inside the image (N,) bool."""
+    def inside_image(self, pixels: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """Whether pixels (N, 2) lie inside the image, at least ``margin_px`` from its border (N,) bool."""
         return (
-            (pixels[:, 0] >= 0.0) & (pixels[:, 0] <= self.width - 1.0)
-            & (pixels[:, 1] >= 0.0) & (pixels[:, 1] <= self.height - 1.0)
+            (pixels[:, 0] >= margin_px) & (pixels[:, 0] <= self.width - 1.0 - margin_px)
+            & (pixels[:, 1] >= margin_px) & (pixels[:, 1] <= self.height - 1.0 - margin_px)
         )
 
     def project_stereo(self, p_c: np.ndarray) -> np.ndarray:

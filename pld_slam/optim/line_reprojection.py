@@ -115,9 +115,7 @@ def endpoints_away_from_border(
     The paper applies the horizontal error only to such segments: an endpoint at the
     border is where the image cut the segment, not where the 3D segment ends.
     """
-    endpoints = np.stack([start_px, end_px], axis=1)
-    high = np.array([camera.width - 1.0 - margin_px, camera.height - 1.0 - margin_px])
-    return np.all((endpoints >= margin_px) & (endpoints <= high), axis=(1, 2))
+    return camera.inside_image(start_px, margin_px) & camera.inside_image(end_px, margin_px)
 
 
 @dataclass(frozen=True)
