@@ -75,6 +75,7 @@ def format_run_table(summary: dict) -> str:
          + f" (sequence time at {frame_rate_text(summary['frame_rate'])} / wall time;"
          " above 1 is faster than real time)"),
         ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
+        *disparity_offset_rows(summary["disparity_offset"]),
     ]
     mapping = summary["mapping"]
     if mapping is not None:
@@ -101,6 +102,16 @@ def format_run_table(summary: dict) -> str:
             per = "keyframe" if stage in ("mapping", "loop") else "frame"
             rows.append((f"{stage} ms/{per} (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
     return "\n".join(f"{label:<28}{value}" for label, value in rows)
+
+
+def disparity_offset_rows(estimate: dict | None) -> list[tuple[str, str]]:
+    """The report row of the disparity-offset self-calibration (`pld_slam.stereo_calibration`); none when off."""
+    if estimate is None:
+        return []
+    basis = f"{estimate['pairs']} frame pairs, {estimate['ms'] / 1e3:.1f} s"
+    if estimate["used"]:
+        return [("disparity offset", f"{estimate['offset_px']:+.3f} px (sigma {estimate['sigma_px']:.3f}, {basis})")]
+    return [("disparity offset", f"not changed: {estimate['reason']} ({basis})")]
 
 
 def overlay_writer(folder: Path, sequence: StereoSequence):

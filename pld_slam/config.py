@@ -48,6 +48,26 @@ class DatasetConfig:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """Self-calibration of the stereo rig from the sequence's images (`pld_slam.stereo_calibration`)."""
+
+    disparity_offset: bool = _param(
+        True, "estimate the rig's disparity offset (cx_left - cx_right error) from frame pairs before the run"
+    )
+    anchors: int = _param(12, "places spread over the sequence whose three frames give frame pairs", 1)
+    min_anchors: int = _param(
+        6, "fewest anchors with a pair pose for an estimate (a sequence has at most a third of its frames)", 2
+    )
+    max_offset_px: float = _param(1.0, "the offset is searched in [-this, +this] [px]", 0.1)
+    max_sigma_px: float = _param(
+        0.1, "the estimate is used only when its standard deviation is under this [px]", 0.0
+    )
+    min_significance: float = _param(
+        2.5, "... and it lies at least this many standard deviations from zero (a smaller one may be noise)", 0.0
+    )
+
+
+@dataclass(frozen=True)
 class PointsConfig:
     """ORB point features: detection, bucketing over the image, stereo matching."""
 
@@ -341,6 +361,7 @@ class Config:
 
     system: SystemConfig = field(default_factory=SystemConfig)
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     points: PointsConfig = field(default_factory=PointsConfig)
     lines: LinesConfig = field(default_factory=LinesConfig)
     filters: FiltersConfig = field(default_factory=FiltersConfig)

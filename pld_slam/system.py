@@ -7,6 +7,11 @@ mapping work happens before the next frame is tracked. ``mapping.enabled: false`
 tracking alone, a visual odometry against the reference frame. Loop closure and the
 final global BA join here as they are built.
 
+Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
+spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
+every stage then uses `System.camera`, the sequence's camera with that offset, and the
+estimate's time counts in the run's wall time.
+
 Every frame's pose. With a map, a frame's pose is stored relative to its reference
 keyframe (the last keyframe inserted before it; a keyframe is its own), and
 `RunResult.trajectory` composes it with that keyframe's pose at the time it is asked, so
@@ -45,6 +50,7 @@ from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
+from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
@@ -98,7 +104,8 @@ class RunResult:
 
     ``map`` is the run's map (None without mapping); ``insertions`` what local mapping did
     at each keyframe; ``loop_closing`` the loop stage (its candidates and closed loops; None
-    without one); ``global_ba`` the final global BA (None when it did not run).
+    without one); ``global_ba`` the final global BA (None when it did not run);
+    ``disparity_offset`` the self-calibration before the run (None when switched off).
     """
 
     records: list[FrameRecord] = field(default_factory=list)
@@ -108,6 +115,7 @@ class RunResult:
     insertions: list[KeyframeInsertion] = field(default_factory=list)
     loop_closing: LoopClosing | None = None
     global_ba: BaReport | None = None
+    disparity_offset: DisparityOffsetEstimate | None = None
 
     def trajectory(self) -> Trajectory:
         """``T_w_c`` of every processed frame, through its reference keyframe's current pose where it has one."""
@@ -152,13 +160,15 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
+        self.camera, disparity_offset = calibrated_camera(sequence, config)
         world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
-        self.local_mapping = None if world_map is None else LocalMapping(world_map, sequence.camera, config)
+        self.local_mapping = None if world_map is None else LocalMapping(world_map, self.camera, config)
         self.loop_closing = None
         if self.local_mapping is not None and config.loop.detector != "none":
-            self.loop_closing = LoopClosing(world_map, self.local_mapping, sequence.camera, config)
-        self.tracker = Tracker(sequence.camera, config, world_map)
-        self.result = RunResult(map=world_map, loop_closing=self.loop_closing)
+            self.loop_closing = LoopClosing(world_map, self.local_mapping, self.camera, config)
+        self.tracker = Tracker(self.camera, config, world_map)
+        self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
+                                wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3)
         self._observer = observer
         self._record_observer = record_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
@@ -190,7 +200,7 @@ class System:
         loaded = time.perf_counter()
         ggs = self.config.ggs if self.local_mapping is not None else None
         features = extract_stereo_features(
-            frame.left, frame.right, self.sequence.camera, self.config.points, self.config.lines, ggs
+            frame.left, frame.right, self.camera, self.config.points, self.config.lines, ggs
         )
         extracted = time.perf_counter()
         if not self._started:
@@ -295,7 +305,7 @@ class System:
         """Global BA over the whole map (``optimize.global_ba``), once the last frame is processed."""
         if self.result.map is not None and self.config.optimize.global_ba:
             start = time.perf_counter()
-            self.result.global_ba = global_bundle_adjustment(self.result.map, self.sequence.camera, self.config)
+            self.result.global_ba = global_bundle_adjustment(self.result.map, self.camera, self.config)
             self.result.wall_seconds += time.perf_counter() - start
 
     def _add(self, record: FrameRecord, start: float) -> None:

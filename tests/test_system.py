@@ -316,6 +316,10 @@ def test_the_summary_of_a_whole_run(sequence, config, full_run):
     assert summary["frame_rate"] == {"hz": 10.0, "source": "frame_rate of synth.json"}
     assert summary["real_time_factor"] > 0.0
     assert summary["real_time_factor"] == pytest.approx(N_FRAMES / 10.0 / full_run.wall_seconds)
+    offset = summary["disparity_offset"]
+    assert offset == full_run.disparity_offset.as_dict()
+    assert offset["ms"] / 1e3 < full_run.wall_seconds  # the self-calibration counts in the run's wall time
+    assert offset["used"] is False and offset["reason"]  # 12 frames of an exact rig: nothing to correct
 
     expected = evaluate(sequence.groundtruth, full_run.trajectory()).as_dict()
     assert {key: summary[key] for key in ACCURACY_KEYS} == expected

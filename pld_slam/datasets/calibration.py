@@ -143,7 +143,9 @@ def stereo_camera_from_projections(
     ``(P_left[0, 3] - P_right[0, 3]) / fx`` (``P_right[0, 3] = -fx * b`` when the left
     camera is the reference, as in KITTI and ``cv2.stereoRectify``). A baseline that is
     not positive (the right camera is not to the right: swapped images or a sign error in
-    the calibration) raises `DatasetError` naming ``source``, the calibration file.
+    the calibration) raises `DatasetError` naming ``source``, the calibration file. Where
+    the two matrices have different principal points, their difference
+    ``P_left[0, 2] - P_right[0, 2]`` is the camera's ``disparity_offset``.
     """
     fx = float(P_left[0, 0])
     baseline = float(P_left[0, 3] - P_right[0, 3]) / fx
@@ -160,4 +162,5 @@ def stereo_camera_from_projections(
         baseline=baseline,
         width=int(width),
         height=int(height),
+        disparity_offset=float(P_left[0, 2] - P_right[0, 2]),
     )

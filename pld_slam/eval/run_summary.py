@@ -248,6 +248,7 @@ def summarise_run(
         "wall_seconds": result.wall_seconds,
         "real_time_factor": real_time_factor(sequence, result),
         "frame_rate": {"hz": sequence.frame_rate.hz, "source": sequence.frame_rate.source},
+        "disparity_offset": None if result.disparity_offset is None else result.disparity_offset.as_dict(),
         "world_frame": world_frame(result),
         **accuracy_from_world_frame(sequence, result),
         "features_median": {

@@ -98,7 +98,8 @@ class StereoLines:
     @property
     def right_endpoints(self) -> np.ndarray:
         """(M, 4) two points ``(u_s, v_s, u_e, v_e)`` of each segment in the right image [px]: the
-        left endpoints' rows, shifted by their disparities (on the right segment's line)."""
+        left endpoints' rows, shifted by their disparities (on the right segment's line, in
+        columns that share the left image's principal point: `StereoCamera.disparity_offset`)."""
         shifted = self.endpoints.copy()
         shifted[:, [0, 2]] -= self.disparity
         return shifted
@@ -294,7 +295,7 @@ def match_stereo_lines(left: ImageLines, right: ImageLines, camera: StereoCamera
     if len(left.segments) == 0 or len(right.segments) == 0:
         return StereoLines.empty()
     d_min, d_max = disparity_limits(camera, config.min_depth_baselines, config.max_depth_baselines)
-    disparity = endpoint_disparities(left.segments, right.segments)
+    disparity = camera.image_disparity_to_metric(endpoint_disparities(left.segments, right.segments))
     candidate = (
         (
             oriented_angle_differences(

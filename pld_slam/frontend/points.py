@@ -397,18 +397,21 @@ def stereo_match_indices(
     """The left keypoints with a stereo match (K,) int64, their disparity (K,) and right column (K,) [px].
 
     Candidates, descriptor match and sub-pixel disparity as the module docstring says;
-    matches outside the depth limits are dropped.
+    matches outside the depth limits are dropped. The disparity is ``bf / z``: the
+    camera's ``disparity_offset`` is removed, and the right column is ``u_left`` minus it.
     """
     d_min, d_max = disparity_limits(camera, config.min_depth_baselines, config.max_depth_baselines)
-    query, train = row_band_candidates(left, right, config, d_min, d_max)
+    offset = camera.disparity_offset
+    query, train = row_band_candidates(left, right, config, d_min + offset, d_max + offset)
     distance = hamming_distances(left.descriptors[query], right.descriptors[train])
     column_at_octave = right.uv[train, 0] / level_scales(config)[left.octave[query]]
     matches = unique_train(
         best_matches(query, train, distance, column_at_octave, config.stereo_max_distance, config.stereo_ratio)
     )
-    u_right, valid = refine_right_columns(left, right, matches.query, matches.train, config)
+    u_right_image, valid = refine_right_columns(left, right, matches.query, matches.train, config)
     index = matches.query
-    disparity = left.uv[index, 0] - u_right
+    disparity = camera.image_disparity_to_metric(left.uv[index, 0] - u_right_image)
+    u_right = left.uv[index, 0] - disparity
     keep = valid & (disparity >= d_min) & (disparity <= d_max)
     return index[keep], disparity[keep], u_right[keep]
 

@@ -3,6 +3,11 @@
 Frames: the left camera ``c`` has x right, y down, z forward; the right camera sits at
 ``(+baseline, 0, 0)`` in it with the same orientation. Pixels are ``(u, v)`` =
 (column, row). A point at depth z has disparity ``d = u_left - u_right = fx * b / z``.
+
+The images may measure ``d + disparity_offset`` instead: the offset is ``cx_left -
+cx_right``, zero when both images were rectified to one principal point. The front end
+removes it where it measures disparities (`image_disparity_to_metric`), so that every
+later stage sees ``d = bf / z`` and right columns ``u_left - d``.
 """
 
 from dataclasses import dataclass
@@ -12,7 +17,8 @@ import numpy as np
 
 @dataclass(frozen=True)
 class StereoCamera:
-    """A rectified stereo pair: pinhole intrinsics [px], baseline [m], image size [px]."""
+    """A rectified stereo pair: pinhole intrinsics [px], baseline [m], image size [px], and the
+    disparity [px] the images measure at infinite depth (module docstring)."""
 
     fx: float
     fy: float
@@ -21,6 +27,7 @@ class StereoCamera:
     baseline: float
     width: int
     height: int
+    disparity_offset: float = 0.0
 
     @property
     def K(self) -> np.ndarray:
@@ -51,6 +58,7 @@ class StereoCamera:
             baseline=self.baseline,
             width=width,
             height=height,
+            disparity_offset=s_x * self.disparity_offset,
         )
 
     @property
@@ -83,6 +91,10 @@ class StereoCamera:
         x = (uv[:, 0] - self.cx) / self.fx * depth
         y = (uv[:, 1] - self.cy) / self.fy * depth
         return np.column_stack([x, y, depth])
+
+    def image_disparity_to_metric(self, image_disparity: np.ndarray) -> np.ndarray:
+        """Disparities ``bf / z`` (N,) [px] of disparities (N,) measured between the two images."""
+        return image_disparity - self.disparity_offset
 
     def triangulate(self, uv_left: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         """Points (N, 3) in the left camera frame from left pixels (N, 2) and disparities (N,) [px]."""

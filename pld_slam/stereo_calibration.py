@@ -1,0 +1,342 @@
+"""Self-calibration of the stereo rig's disparity offset from the sequence's own images.
+
+A rectified pair measures ``d = u_left - u_right = bf / z + offset``: the offset is the
+difference of the two images' principal points, ``cx_left - cx_right``. Calibration files
+state it (KITTI's and `cv2.stereoRectify`'s right projection matrix may carry its own
+``cx``), but a rig's calibration is not exact, and a residual offset of a fraction of a
+pixel biases every depth by ``offset / d``: the same sign for every point, so the whole
+trajectory comes out too long or too short. On KITTI 06 (frames 0-50), the ground-truth
+motion agrees with our stereo depths only for an offset of -0.15 px: fitted jointly with a
+scale on ``bf``, the offset came out at -0.146 px and the scale at 0.999; SGBM's
+disparities agree with ours to 0.03 px, so the offset is in the images, not in our
+matcher. Uncorrected, it made our KITTI 06 trajectory 1.1 % too long (ATE 0.19 m, 0.024 m
+after a similarity alignment).
+
+The offset is observable without ground truth, because an offset and a depth error are
+not the same thing for a moving camera: the image flow of a static point between two
+frames measures the ratio of its depths in the two frames (through its depth in the
+first), its disparities measure the same ratio only when the offset is right. We
+estimate it as the offset that lets the most frame pairs be explained by one rigid motion
+each (`estimate_disparity_offset`):
+
+1. Frames: ``calibration.anchors`` anchors spread evenly over the sequence, each with the
+   two frames after it; pairs (a, a+1), (a+1, a+2) and (a, a+2). Spread, because a run
+   may start standing still (no motion: no information) and one stretch may be
+   untextured. No two anchors share a frame, and fewer than ``calibration.min_anchors``
+   (6) anchors with a pair pose give no estimate: an 8-frame synthetic street, whose 12
+   anchors shared frames, gave -0.31 px at "4 deviations" for a true 0. Unreadable
+   frames are left out.
+2. Each pair's stereo points are matched by descriptor (`pair_matches`). At the current
+   offset, its relative pose is found by stereo PnP RANSAC on the first frame's 3D points
+   (`pnp_pose`) and refined by the pose-only solver, which also picks the inliers
+   (`gate_pair`).
+3. The profile cost of an offset change ``delta``: every pair's first-frame points are
+   triangulated again with disparities ``d - delta``, its second-frame right columns
+   moved by ``+delta``, its pose solved again on the same inliers without a robust loss,
+   and the whitened squared errors summed over all pairs. A Newton step on this profile
+   (`profile_minimum`) moves the offset to its minimum inside
+   ``[-calibration.max_offset_px, +calibration.max_offset_px]``; steps 2 and 3 repeat
+   from there until the offset moves by less than 0.005 px (`GATING_ROUNDS` at most).
+   Inliers picked at a wrong offset favour matches that the wrong offset explains: on a
+   synthetic street whose right images were shifted by 0.4 px, one round found 0.23 px.
+4. Its standard deviation: for whitened errors the profile is ``C0 + kappa (delta -
+   offset)^2 / 2`` near the minimum and the offset's variance ``1 / kappa``, times the
+   residual variance ``2 C0 / (n_rows - n_unknowns)`` where that exceeds 1 (the assumed
+   sigmas are too small), never less (identical frames fit perfectly but say nothing
+   about the offset). That deviation assumes independent errors; they are not (a point's
+   sub-pixel error repeats in every frame, and on real images the offset may vary over
+   the image), so the deviation used is the larger of it and the standard error of the
+   anchors' own minima about the pooled one (`_spread_over_anchors`). On KITTI 06 the
+   first is 0.020 px, the second 0.074 px; on synthetic streets 0.025 and 0.032-0.038 px.
+5. The offset is used only when the minimum is not at the bound, its deviation is under
+   ``calibration.max_sigma_px`` and it lies ``calibration.min_significance`` (2.5)
+   deviations from zero (a two-sided test at the 1.2 % level); otherwise the
+   calibration's offset stays (a camera that hardly moved, too few anchors, or no clear
+   offset). The test matters: a wrong correction costs as much as a missing one. On
+   synthetic streets (exact calibration, 640 x 480, ``bf`` 192 px m), seeds 0-2 gave
+   +0.040, +0.024 and -0.064 px (1.1, 0.8 and 1.1 deviations), and using the first made
+   the trajectory 0.5 % too long (ATE 0.027 -> 0.120 m); a 30-frame 320 x 240 street gave
+   +0.106 px at 2.0 deviations (the estimate is least reliable on small images, where
+   disparities are small). KITTI 06 gave -0.197 px (2.65 deviations; ATE 0.190 ->
+   0.029 m); its every-second-frame copy -0.141 px (2.7; ATE 0.026 m); its copy from
+   frame 10 -0.153 px (2.1, not used; ATE 0.151 m) and the 26 frames from frame 25
+   -0.248 px with a deviation of 0.129 px (not used; ATE 0.096 m): on 26-51 frames the
+   decision is close. KITTI raw 0005 (slow, turning, movers) and the EuRoC extracts say
+   too little (deviations 0.13-0.56 px) and keep their calibration. Synthetic sequences
+   are rendered with an exact rig, and their family file switches the estimate off.
+
+The paper does not calibrate; it assumes the rig's calibration. We do because the offset
+was the largest error on our real KITTI extracts. It costs 2-4 s per run (36 frames'
+stereo points, then per round 36 pair poses and three profile costs; KITTI 06: 3.7 s). Points only: lines would add
+little information on one number and cost time.
+"""
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pld_slam.config import Config, LinesConfig
+from pld_slam.datasets.base import StereoSequence
+from pld_slam.errors import DatasetError
+from pld_slam.frontend import StereoFeatures, extract_stereo_features
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.optim.observations import PointObservations
+from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose, optimize_pose_rejecting_outliers
+from pld_slam.tracking.observations import point_observations
+from pld_slam.tracking.relocalisation import MIN_PNP_INLIERS, match_without_prior, pnp_pose
+
+PROFILE_STEP_PX = 0.05
+"""Offset step [px] of the finite differences that give the profile's slope and curvature."""
+PAIR_POSE_OPTIONS = PoseOnlyOptions(rounds=2, robust_rounds=1)
+"""A pair's pose: one robust solve from the PnP pose, one on its inliers. The tracker's four
+rounds cost 0.8 s more on KITTI 06 and moved the estimate by 0.018 px, within its sigma."""
+GATING_ROUNDS = 4
+"""Most rounds of choosing the pairs' inliers at the current offset and stepping to the
+profile's minimum (module docstring, steps 2-3)."""
+GATING_TOLERANCE_PX = 0.005
+"""A round that moves the offset by less than this [px] is the last."""
+
+
+@dataclass(frozen=True)
+class PairMatches:
+    """A frame pair's point matches between stereo points of both frames.
+
+    Attributes
+    ----------
+    uv_first : (K, 2) left pixels of the points in the first frame.
+    disparity_first : (K,) their disparities [px] (the camera's offset already removed).
+    stereo_px_second, sigma_second : (K, 3) their ``(u_left, v, u_right)`` [px] in the second
+        frame and the sigmas of those (`pld_slam.tracking.observations.point_observations`).
+    """
+
+    uv_first: np.ndarray
+    disparity_first: np.ndarray
+    stereo_px_second: np.ndarray
+    sigma_second: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.disparity_first)
+
+    def subset(self, keep: np.ndarray) -> "PairMatches":
+        """The matches ``keep`` (K,) bool."""
+        return PairMatches(self.uv_first[keep], self.disparity_first[keep], self.stereo_px_second[keep],
+                           self.sigma_second[keep])
+
+
+@dataclass(frozen=True)
+class GatedPair:
+    """A frame pair's inlier matches at one offset, its relative pose ``T_second_first`` (4, 4)
+    there, and the anchor (module docstring, step 1) it belongs to."""
+
+    matches: PairMatches
+    T_second_first: np.ndarray
+    anchor: int
+
+
+@dataclass(frozen=True)
+class DisparityOffsetEstimate:
+    """The outcome of `estimate_disparity_offset`.
+
+    Attributes
+    ----------
+    offset_px : the estimated change of the camera's disparity offset [px] (0 when not used).
+    sigma_px : its standard deviation [px] (inf when the profile has no curvature).
+    used : whether ``offset_px`` is applied to the run's camera.
+    reason : why not, when not used ("" when used).
+    pairs, points : frame pairs and point matches the estimate rests on.
+    ms : wall time of the whole estimate [ms].
+    """
+
+    offset_px: float
+    sigma_px: float
+    used: bool
+    reason: str
+    pairs: int
+    points: int
+    ms: float
+
+    def as_dict(self) -> dict:
+        """The estimate as plain JSON values (`summary.json`)."""
+        return dataclasses.asdict(self) | {"sigma_px": self.sigma_px if np.isfinite(self.sigma_px) else None}
+
+
+def calibrated_camera(sequence: StereoSequence, config: Config) -> tuple[StereoCamera, DisparityOffsetEstimate | None]:
+    """The camera a run uses: the sequence's, with the disparity offset estimated from its images
+    when ``calibration.disparity_offset`` is on, and the estimate (None when off)."""
+    if not config.calibration.disparity_offset:
+        return sequence.camera, None
+    estimate = estimate_disparity_offset(sequence, config)
+    if not estimate.used:
+        return sequence.camera, estimate
+    camera = sequence.camera
+    return dataclasses.replace(camera, disparity_offset=camera.disparity_offset + estimate.offset_px), estimate
+
+
+def estimate_disparity_offset(sequence: StereoSequence, config: Config) -> DisparityOffsetEstimate:
+    """The change of ``sequence.camera``'s disparity offset that best explains its frame pairs (module docstring)."""
+    start = time.perf_counter()
+    calibration, camera = config.calibration, sequence.camera
+    anchored_pairs = _anchored_pairs(len(sequence), calibration.anchors)
+    features = _features_of(sequence, sorted({frame for pair in anchored_pairs for frame in pair[:2]}), config)
+    matches = [
+        (anchor, found)
+        for first, second, anchor in anchored_pairs
+        if first in features and second in features
+        and (found := pair_matches(features[first], features[second], config)) is not None
+    ]
+    offset, sigma, pairs = 0.0, np.inf, []
+    for _ in range(GATING_ROUNDS):
+        gated = (gate_pair(camera, found, anchor, offset, config) for anchor, found in matches)
+        pairs = [pair for pair in gated if pair is not None]
+        if _anchors_of(pairs) < calibration.min_anchors:
+            break
+        previous = offset
+        offset, sigma = profile_minimum(camera, pairs, offset, calibration.max_offset_px)
+        if abs(offset - previous) < GATING_TOLERANCE_PX:
+            break
+
+    def finish(reason: str) -> DisparityOffsetEstimate:
+        used = not reason
+        return DisparityOffsetEstimate(offset if used else 0.0, sigma, used, reason, len(pairs),
+                                       sum(len(pair.matches) for pair in pairs), 1e3 * (time.perf_counter() - start))
+
+    bound = calibration.max_offset_px
+    if _anchors_of(pairs) < calibration.min_anchors:
+        return finish(f"{_anchors_of(pairs)} anchors with a pair pose, fewer than {calibration.min_anchors}")
+    if abs(offset) >= bound:
+        return finish(f"the best offset {offset:+.3f} px is at the search bound +-{bound:g} px")
+    if not sigma <= calibration.max_sigma_px:
+        return finish(f"offset {offset:+.3f} px is uncertain (sigma {sigma:.3f} px, more than "
+                      f"{calibration.max_sigma_px:g})")
+    if abs(offset) < calibration.min_significance * sigma:
+        return finish(f"offset {offset:+.3f} px is within {calibration.min_significance:g} sigma ({sigma:.3f} px) "
+                      "of zero")
+    return finish("")
+
+
+def _anchored_pairs(n_frames: int, anchors: int) -> list[tuple[int, int, int]]:
+    """Frame pairs ``(first, second, anchor)``: up to ``anchors`` anchors spread over
+    ``n_frames`` frames, each with the two frames after it, paired (a, a+1), (a+1, a+2)
+    and (a, a+2). No two anchors share a frame (a short sequence gets fewer anchors), so
+    that their own minima are independent estimates (`_spread_over_anchors`)."""
+    count = min(anchors, n_frames // 3)
+    if count == 0:
+        return []
+    starts = np.rint(np.linspace(0, n_frames - 3, count)).astype(int) if count > 1 else np.array([0])
+    return [
+        (start + first, start + second, anchor)
+        for anchor, start in enumerate(starts.tolist())
+        for first, second in ((0, 1), (1, 2), (0, 2))
+    ]
+
+
+def _anchors_of(pairs: list[GatedPair]) -> int:
+    """How many anchors the pairs come from."""
+    return len({pair.anchor for pair in pairs})
+
+
+def _features_of(sequence: StereoSequence, frames: list[int], config: Config) -> dict[int, StereoFeatures]:
+    """Stereo points (no lines) of the readable frames among ``frames``, by index."""
+    points_only = LinesConfig(enabled=False)
+    features = {}
+    for index in frames:
+        try:
+            frame = sequence[index]
+        except DatasetError:
+            continue
+        features[index] = extract_stereo_features(frame.left, frame.right, sequence.camera, config.points, points_only)
+    return features
+
+
+def pair_matches(first: StereoFeatures, second: StereoFeatures, config: Config) -> PairMatches | None:
+    """The stereo points of ``first`` matched by descriptor to stereo points of ``second``
+    (`match_without_prior`); None with fewer than `MIN_PNP_INLIERS`."""
+    found = match_without_prior(second.keypoints, first.points.descriptors, config.tracking.max_point_distance)
+    stereo = found.current < second.keypoints.n_stereo
+    before, after = found.previous[stereo], found.current[stereo]
+    if len(before) < MIN_PNP_INLIERS:
+        return None
+    observed = point_observations(np.zeros((len(after), 3)), second.keypoints, after, config.points)
+    return PairMatches(first.points.uv[before], first.points.disparity[before], observed.stereo_px, observed.sigma_px)
+
+
+def observations_at(camera: StereoCamera, matches: PairMatches, delta: float) -> PointObservations:
+    """The second frame's observations of the first frame's points, at offset change ``delta`` [px].
+
+    ``delta`` is added to every measured disparity offset: the first frame's points are
+    triangulated from ``d - delta`` (in the first camera's frame, the "world" of the pair),
+    the second frame's right columns move by ``+delta``.
+    """
+    return PointObservations(
+        camera.triangulate(matches.uv_first, matches.disparity_first - delta),
+        matches.stereo_px_second + np.array([0.0, 0.0, delta]),
+        matches.sigma_second,
+    )
+
+
+def gate_pair(
+    camera: StereoCamera, matches: PairMatches, anchor: int, delta: float, config: Config
+) -> GatedPair | None:
+    """The pair's relative pose and inliers at offset change ``delta`` (module docstring, step 2),
+    or None when PnP or the pose-only solve fails."""
+    observations = observations_at(camera, matches, delta)
+    pose = pnp_pose(camera, observations.points_w, observations.stereo_px[:, :2], config.system.seed)
+    if pose is None:
+        return None
+    refined = optimize_pose_rejecting_outliers(camera, pose.T_c_w, observations, options=PAIR_POSE_OPTIONS)
+    inliers = refined.inliers.points
+    if not refined.success or inliers.sum() < MIN_PNP_INLIERS:
+        return None
+    return GatedPair(matches.subset(inliers), refined.T_c_w, anchor)
+
+
+def pair_cost(camera: StereoCamera, pair: GatedPair, delta: float) -> float:
+    """Half the sum of the pair's squared whitened errors, its pose re-solved at offset change ``delta`` [px]."""
+    solved = optimize_pose(camera, pair.T_second_first, observations_at(camera, pair.matches, delta), robust=False)
+    return 0.5 * float(solved.point_chi2.sum())
+
+
+def profile_costs(camera: StereoCamera, pairs: list[GatedPair], delta: float) -> np.ndarray:
+    """`pair_cost` (P,) of every pair at offset change ``delta`` [px]; their sum is the profile cost."""
+    return np.array([pair_cost(camera, pair, delta) for pair in pairs])
+
+
+def profile_minimum(camera: StereoCamera, pairs: list[GatedPair], centre: float, bound: float) -> tuple[float, float]:
+    """The offset change [px] at the profile's minimum, by one Newton step from ``centre``
+    within ``[-bound, bound]``, and its standard deviation [px] (module docstring, step 4).
+
+    The profile's slope and curvature come from three costs `PROFILE_STEP_PX` apart. A
+    profile without positive curvature (no information: a camera that does not move)
+    stays at ``centre``, with an infinite deviation.
+    """
+    step = PROFILE_STEP_PX
+    below, cost, above = (profile_costs(camera, pairs, centre + k * step) for k in (-1, 0, 1))
+    anchor = np.array([pair.anchor for pair in pairs])
+    by_anchor = [np.bincount(anchor, weights=costs) for costs in (below, cost, above)]
+    slope = (by_anchor[2] - by_anchor[0]) / (2.0 * step)
+    curvature = (by_anchor[2] - 2.0 * by_anchor[1] + by_anchor[0]) / step**2
+    if curvature.sum() <= 0:
+        return centre, np.inf
+    offset = centre - slope.sum() / curvature.sum()
+    minimum_cost = cost.sum() - slope.sum() ** 2 / (2.0 * curvature.sum())
+    n_rows = 3 * sum(len(pair.matches) for pair in pairs)
+    residual_variance = max(2.0 * minimum_cost / max(n_rows - 6 * len(pairs) - 1, 1), 1.0)
+    sigma = max(np.sqrt(residual_variance / curvature.sum()), _spread_over_anchors(centre, slope, curvature, offset))
+    return float(np.clip(offset, -bound, bound)), float(sigma)
+
+
+def _spread_over_anchors(centre: float, slope: np.ndarray, curvature: np.ndarray, offset: float) -> float:
+    """The standard error [px] of ``offset`` from the spread of the anchors' own minima.
+
+    Each anchor's Newton step ``centre - slope_a / curvature_a`` is an estimate of its own;
+    the curvature-weighted standard error of their mean about ``offset`` holds whatever
+    the residual model misses (step 4). 0 with fewer than two anchors of positive curvature.
+    """
+    informative = curvature > 0
+    if informative.sum() < 2:
+        return 0.0
+    weight = curvature[informative]
+    own = centre - slope[informative] / weight
+    return float(np.sqrt((weight * (own - offset) ** 2).sum() / ((informative.sum() - 1) * weight.sum())))
