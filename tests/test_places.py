@@ -395,15 +395,14 @@ def test_places_table_with_a_csv_ground_truth_and_excluded_images(image_dir, tmp
     assert np.isnan(np.load(out / "similarity.npy")[7, 5])
 
 
-def test_places_without_ground_truth_writes_into_places_by_default(image_dir):
-    runner = CliRunner()
-    with runner.isolated_filesystem():
-        result = runner.invoke(cli, ["places", str(image_dir), "--json"])
-        assert result.exit_code == 0, result.output
-        values = json.loads(result.output)
-        assert values["images"] == 8 and values["top1_accuracy"] is None
-        assert np.load(f"places/{image_dir.name}/similarity.npy").shape == (8, 8)
-        assert not (image_dir.parent / "precision_recall.png").exists()
+def test_places_without_ground_truth_writes_into_places_by_default(image_dir, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(cli, ["places", str(image_dir), "--json"])
+    assert result.exit_code == 0, result.output
+    values = json.loads(result.output)
+    assert values["images"] == 8 and values["top1_accuracy"] is None
+    assert np.load(tmp_path / "places" / image_dir.name / "similarity.npy").shape == (8, 8)
+    assert not (image_dir.parent / "precision_recall.png").exists()
 
 
 def test_places_bow_without_vocabulary_is_a_one_line_error(image_dir, tmp_path):
