@@ -35,6 +35,10 @@ class SystemConfig:
     """Run-wide settings."""
 
     seed: int = _param(0, "seed of every random choice (RANSAC, k-means): same seed, same output", 0)
+    prefetch: bool = _param(
+        True, "read and extract the next frame in a background thread while this one is tracked and mapped "
+        "(same output, less wall time)"
+    )
 
 
 @dataclass(frozen=True)
@@ -282,6 +286,15 @@ class MappingConfig:
     )
     line_search_radius_px: float = _param(
         15.0, "window around a map line midpoint's projection searched for its match [px]", 0.5
+    )
+    max_point_distance: int = _param(
+        100, "largest ORB Hamming distance of a map point's match when tracking the local map [bits] (ORB-SLAM2: 100)",
+        0, 256
+    )
+    ratio: float = _param(
+        0.8, "ratio test of a map point's match when tracking the local map: best < ratio * best rival "
+        "(ORB-SLAM2: 0.8)",
+        0.0, 1.0
     )
     max_viewing_angle: float = _param(
         1.047, "a landmark seen more than this angle [rad] away from its mean viewing direction is not searched "

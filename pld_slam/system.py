@@ -7,6 +7,10 @@ mapping work happens before the next frame is tracked. ``mapping.enabled: false`
 tracking alone, a visual odometry against the reference frame. Loop closure and the
 final global BA join here as they are built.
 
+With ``system.prefetch`` (the default), the next frame is read and its features extracted
+in a background thread while this one is tracked and mapped
+(`pld_slam.frame_extraction`); the output is the same.
+
 Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
 spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
 every stage then uses `System.camera`, the sequence's camera with that offset, and the
@@ -39,9 +43,10 @@ import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
-from pld_slam.errors import ConfigError, DatasetError
+from pld_slam.errors import ConfigError
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
-from pld_slam.frontend import StereoFeatures, extract_stereo_features
+from pld_slam.frame_extraction import FramePrefetcher, extract_frame
+from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.se3 import inverse
 from pld_slam.keyframes import KeyframeReason
 from pld_slam.loop.loop_closing import LoopClosing
@@ -51,6 +56,7 @@ from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
+from pld_slam.timing import ms_since
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
@@ -59,7 +65,9 @@ from pld_slam.trajectory import Trajectory
 STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "mapping", "loop", "total")
 """Timed stages of one frame, in order; ``mapping`` (keyframes only) is the local mapping of
 a keyframe, local BA included; ``loop`` (keyframes only) its loop detection, verification
-and correction; ``total`` is the frame's whole wall time."""
+and correction; ``total`` is the frame's whole wall time in the main thread. With
+``system.prefetch``, ``load`` and ``frontend`` ran in the background while the frame before
+was processed, and ``total`` holds only the wait for them, so the stages add up to more."""
 
 
 @dataclass(frozen=True)
@@ -167,6 +175,9 @@ class System:
         if self.local_mapping is not None and config.loop.detector != "none":
             self.loop_closing = LoopClosing(world_map, self.local_mapping, self.camera, config)
         self.tracker = Tracker(self.camera, config, world_map)
+        with_ggs = self.local_mapping is not None
+        self._frames = FramePrefetcher(lambda index: extract_frame(sequence, index, self.camera, config, with_ggs),
+                                       enabled=config.system.prefetch)
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
                                 wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3)
         self._observer = observer
@@ -185,24 +196,21 @@ class System:
         """
         start = time.perf_counter()
         timestamp = float(self.sequence.timestamps[index])
-        try:
-            frame = self.sequence[index]
-        except DatasetError as error:
+        extracted = self._frames.take(index)
+        if index + 1 < len(self.sequence):
+            self._frames.prefetch(index + 1)
+        if extracted.error is not None:
+            error = extracted.error
             if not self._started:
                 return self._before_first_usable(index, timestamp, str(error), start)
             tracked = self.tracker.skip()
             reference = self.tracker.reference_keyframe_id
             record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts,
-                                 {"total": _ms_since(start)}, skipped_reason=str(error), reference_keyframe=reference,
+                                 {"total": ms_since(start)}, skipped_reason=str(error), reference_keyframe=reference,
                                  T_c_r=self._pose_to_reference(tracked.T_w_c, reference))
             self._add(record, start)
             return record
-        loaded = time.perf_counter()
-        ggs = self.config.ggs if self.local_mapping is not None else None
-        features = extract_stereo_features(
-            frame.left, frame.right, self.camera, self.config.points, self.config.lines, ggs
-        )
-        extracted = time.perf_counter()
+        frame, features = extracted.frame, extracted.features
         if not self._started:
             if not self.tracker.can_be_reference(features):
                 reason = (f"{self.sequence.frames.describe(index)}: too few features to start the trajectory on "
@@ -211,12 +219,12 @@ class System:
             self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask)
-        stage_ms = {"load": 1e3 * (loaded - start), "frontend": 1e3 * (extracted - loaded), **tracked.stage_ms}
+        stage_ms = {"load": extracted.load_ms, "frontend": extracted.frontend_ms, **tracked.stage_ms}
         reference = self._map_frame(index, timestamp, features, tracked, stage_ms)
         T_c_r = self._pose_to_reference(tracked.T_w_c, reference)
         if tracked.keyframe is not None:
             T_c_r = np.eye(4)
-        stage_ms["total"] = _ms_since(start)
+        stage_ms["total"] = ms_since(start)
         truth = moving_mask if moving_mask is not None else self.sequence.dynamic_mask(index)
         point_counts, line_counts = _label_counts_against(truth, tracked.dynamic)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
@@ -236,7 +244,7 @@ class System:
         (the world); the record keeps the frame's row (module docstring).
         """
         record = FrameRecord(index, timestamp, np.eye(4), TrackingStatus.LOST, TrackingCounts(),
-                             {"total": _ms_since(start)}, skipped_reason=reason)
+                             {"total": ms_since(start)}, skipped_reason=reason)
         self._add(record, start)
         return record
 
@@ -266,11 +274,11 @@ class System:
         start = time.perf_counter()
         keyframe = _new_keyframe(mapping.map.next_keyframe_id(), index, timestamp, features, tracked)
         self.result.insertions.append(mapping.insert_keyframe(keyframe))
-        stage_ms["mapping"] = _ms_since(start)
+        stage_ms["mapping"] = ms_since(start)
         if self.loop_closing is not None:
             start = time.perf_counter()
             self.loop_closing.process(keyframe)
-            stage_ms["loop"] = _ms_since(start)
+            stage_ms["loop"] = ms_since(start)
         self.tracker.use_keyframe(keyframe)
         return keyframe.id
 
@@ -299,6 +307,8 @@ class System:
         except Exception as error:
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
+        finally:
+            self._frames.close()
         return self.result
 
     def _finish(self) -> None:
@@ -347,6 +357,3 @@ def _label_counts_against(
     on_points, on_lines = features_on_mask(labels.point_uv, labels.line_segments, mask)
     return label_counts(labels.point_dynamic, on_points), label_counts(labels.line_dynamic, on_lines)
 
-
-def _ms_since(start: float) -> float:
-    return 1e3 * (time.perf_counter() - start)

@@ -1,6 +1,11 @@
-"""`StageClock`: the wall time of named stages, lap by lap."""
+"""Wall-clock helpers: `ms_since`, and `StageClock`, the wall time of named stages lap by lap."""
 
 import time
+
+
+def ms_since(start: float) -> float:
+    """Milliseconds since ``start``, a `time.perf_counter` reading."""
+    return 1e3 * (time.perf_counter() - start)
 
 
 class StageClock:

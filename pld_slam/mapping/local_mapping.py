@@ -235,9 +235,12 @@ class LocalMapping:
         if len(landmark_ids) == 0:
             return 0
         snapshot = LandmarkSnapshot.of(kind, landmark_ids)
-        match = match_map_points if isinstance(kind, PointLandmarks) else match_map_lines
         features = getattr(keyframe.features, kind.FEATURES_FIELD)
-        matches = match(self._camera, keyframe.T_c_w, snapshot, features, self._config).matches
+        if isinstance(kind, PointLandmarks):
+            matches = match_map_points(self._camera, keyframe.T_c_w, snapshot, features, self._config,
+                                       self._config.tracking.max_point_distance, self._config.tracking.ratio).matches
+        else:
+            matches = match_map_lines(self._camera, keyframe.T_c_w, snapshot, features, self._config).matches
         fits = self._reprojects(kind, keyframe, snapshot.geometry[matches.previous], matches.current)
         return self.map.observe_or_fuse(kind, keyframe, matches.current[fits], snapshot.ids[matches.previous[fits]],
                                         keep_matched=False)
