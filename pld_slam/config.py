@@ -275,6 +275,10 @@ class MappingConfig:
     local_ba_window: int = _param(
         10, "covisible keyframes optimised by local BA with each new keyframe (their landmarks too)", 1
     )
+    local_ba_min_frames: int = _param(
+        2, "local BA runs at a keyframe this many frames or more after the last local BA's keyframe "
+        "(1: at every keyframe)", 1
+    )
     local_ba_max_nfev: int = _param(
         10, "residual evaluations of each of the two local BA solves (robust, then without outliers)", 1
     )

@@ -83,6 +83,20 @@ def landmark_of(mapping: LocalMapping, keyframe_id: int, point: int) -> int:
     return int(mapping.map.keyframes[keyframe_id].point_ids[point])
 
 
+# --- local BA cadence ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("min_frames, adjusted", [(1, [False, True, True, True]), (2, [False, True, False, True])])
+def test_local_ba_skips_a_keyframe_that_follows_the_last_adjusted_one_too_closely(min_frames, adjusted):
+    """Keyframes at frames 0-3 track the first one's landmarks; the first has nothing to adjust yet."""
+    mapping = local_mapping(config_with(local_ba_min_frames=min_frames))
+    insertions = [mapping.insert_keyframe(keyframe_seeing(mapping, points=range(N_POINTS)))]
+    for _ in range(3):
+        keyframe = keyframe_seeing(mapping, points=range(N_POINTS), tracked_points=range(N_POINTS))
+        insertions.append(mapping.insert_keyframe(keyframe))
+    assert [insertion.local_ba is not None for insertion in insertions] == adjusted
+
+
 # --- landmark creation ----------------------------------------------------------------
 
 
