@@ -29,7 +29,8 @@ a method below:
    end of the run; a feature the frame has no match for yet is mapped as before.
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
    keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
-   theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`) and a
+   theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`, within the
+   frame-to-frame descriptor bounds) and a
    chi-square test on the reprojection (stereo point error, or line vertical error);
    a match to a feature without a landmark adds an observation, a match to a feature with
    another landmark fuses the two (the one with more observers stays).
@@ -38,8 +39,8 @@ a method below:
    fewer than ``mapping.local_ba_min_frames`` (2) frames after the keyframe of the last
    local BA (`_local_ba_due`). ORB-SLAM2 does the like by timing: a local BA is aborted,
    or never started, when keyframes come faster than it runs. A skipped keyframe keeps its
-   tracked pose and is optimised by the next local BA, whose window holds it as the new
-   keyframe's strongest covisible one. On KITTI 06 (a keyframe every 1.6 frames) 23 of the
+   tracked pose and is optimised by the next local BA, a frame or more later, whose window
+   (the new keyframe's strongest covisible keyframes) holds it. On KITTI 06 (a keyframe every 1.6 frames) 23 of the
    32 keyframes ran local BA: mapping 73 against 83-86 ms per frame, total 134-136 against
    140-149 ms mean (median 110-115 against 157-168), the same ATE (0.0305 m). Raw 0005
    (a keyframe every 3 frames) and the synthetic sequences (every 2 to 4) skip none.
