@@ -18,7 +18,6 @@ bag reader is one file handle), so the main thread reads a frame itself only aft
 frame in flight, if any, is done.
 """
 
-import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.timing import ms_since
+from pld_slam.timing import StageClock
 
 
 @dataclass(frozen=True)
@@ -41,29 +40,30 @@ class ExtractedFrame:
     frame : the rectified pair, None when it could not be read.
     features : its stereo features, None when it could not be read.
     error : why the frame could not be read (the `DatasetError` naming the file), else None.
-    load_ms, frontend_ms : wall time of reading and of the front end [ms], wherever they ran.
+    stage_ms : wall time [ms] of the stages that ran, wherever they ran: ``load``, then ``frontend``.
     """
 
     index: int
     frame: StereoFrame | None
     features: StereoFeatures | None
     error: DatasetError | None
-    load_ms: float
-    frontend_ms: float
+    stage_ms: dict[str, float]
 
 
 def extract_frame(sequence: StereoSequence, index: int, camera: StereoCamera, config: Config,
                   with_ggs: bool) -> ExtractedFrame:
     """Read frame ``index`` of ``sequence`` and extract its features (with its GGS when ``with_ggs``)."""
-    start = time.perf_counter()
+    clock = StageClock()
     try:
         frame = sequence[index]
     except DatasetError as error:
-        return ExtractedFrame(index, None, None, error, ms_since(start), 0.0)
-    loaded = time.perf_counter()
+        clock.lap("load")
+        return ExtractedFrame(index, None, None, error, clock.laps)
+    clock.lap("load")
     features = extract_stereo_features(frame.left, frame.right, camera, config.points, config.lines,
                                        config.ggs if with_ggs else None)
-    return ExtractedFrame(index, frame, features, None, 1e3 * (loaded - start), ms_since(loaded))
+    clock.lap("frontend")
+    return ExtractedFrame(index, frame, features, None, clock.laps)
 
 
 class FramePrefetcher:

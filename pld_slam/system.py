@@ -219,7 +219,7 @@ class System:
             self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask)
-        stage_ms = {"load": extracted.load_ms, "frontend": extracted.frontend_ms, **tracked.stage_ms}
+        stage_ms = {**extracted.stage_ms, **tracked.stage_ms}
         reference = self._map_frame(index, timestamp, features, tracked, stage_ms)
         T_c_r = self._pose_to_reference(tracked.T_w_c, reference)
         if tracked.keyframe is not None:

@@ -28,7 +28,7 @@ class RecordingExtractor:
             if index == self._fail_at:
                 raise ValueError(f"broken extraction of frame {index}")
             error = DatasetError(f"frame {index} unreadable") if index == self._unreadable_at else None
-            return ExtractedFrame(index, None, None, error, 0.0, 0.0)
+            return ExtractedFrame(index, None, None, error, {})
         finally:
             self._busy.release()
 
