@@ -250,7 +250,7 @@ def test_observation_table_lists_the_keyframes_of_a_landmark_in_the_order_they_o
 # --- covisibility links ---------------------------------------------------------------
 
 
-def test_update_links_counts_the_points_and_lines_shared_with_every_other_keyframe():
+def test_links_count_the_points_and_lines_shared_with_every_other_keyframe_as_observations_change():
     world_map = Map(covisibility_min_shared=3)
     add_landmarks(world_map, 6, 4)
     k0 = insert_observer(world_map, point_ids=[0, 1, 2, 3], line_ids=[0, 1])
@@ -264,23 +264,20 @@ def test_update_links_counts_the_points_and_lines_shared_with_every_other_keyfra
     assert shared(k3.id) == {1: 1, 2: 1}
     assert shared(k1.id) == {0: 3, 2: 2, 3: 1}  # updated from k3's side
     world_map.erase_observations(world_map.points, k1, np.array([0]))  # k1 no longer sees point 1
-    world_map.update_links(k1)
     assert shared(k1.id) == {0: 2, 2: 2, 3: 1}
     assert shared(k0.id) == {1: 2, 2: 2}
 
 
-def test_update_links_after_removing_landmarks_drops_the_links_they_made():
+def test_removing_landmarks_drops_the_links_they_made():
     world_map = Map(covisibility_min_shared=3)
     add_landmarks(world_map, 4, 1)
     k0 = insert_observer(world_map, point_ids=[0, 1, 2], line_ids=[0])
     k1 = insert_observer(world_map, point_ids=[0, 1, 3], line_ids=[0])
     assert world_map.covisibility.shared(k1.id) == {0: 3}
     world_map.remove_landmarks(world_map.points, np.array([0, 1]))
-    world_map.update_links(k0)
     assert world_map.covisibility.shared(k0.id) == {1: 1}
     assert world_map.covisibility.shared(k1.id) == {0: 1}
     world_map.remove_landmarks(world_map.lines, np.array([0]))
-    world_map.update_links(k1)
     assert world_map.covisibility.shared(k0.id) == {} and world_map.covisibility.shared(k1.id) == {}
 
 

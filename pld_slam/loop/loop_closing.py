@@ -257,7 +257,7 @@ class LoopClosing:
             for kind, ids in zip(self.map.kinds, loop_side):
                 fused += self._local_mapping.fuse(kind, self.map.keyframes[keyframe_id], ids)
         for keyframe_id in group:
-            self.map.update_links(self.map.keyframes[keyframe_id])
+            self.map.attach_to_tree(self.map.keyframes[keyframe_id])
         return fused
 
     def _optimise(self, edges: np.ndarray, before: dict[int, np.ndarray]) -> tuple[PoseGraphResult, int]:

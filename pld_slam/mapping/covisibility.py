@@ -36,28 +36,20 @@ class CovisibilityGraph:
         return keyframe in self._shared
 
     def add_keyframe(self, keyframe: int) -> None:
-        """A keyframe without links (linked by `set_links`)."""
+        """A keyframe without links (its observations link it, `change_shared`)."""
         self._shared[keyframe] = {}
         self.parent[keyframe] = None
         self.children[keyframe] = set()
 
-    def set_links(self, keyframe: int, shared: dict[int, int]) -> None:
-        """Replace the links of ``keyframe`` by ``shared`` ``{other keyframe: landmarks both see}``.
-
-        Links are symmetric: the other keyframes' links to it change too. A keyframe
-        without a parent gets the strongest link as its parent, unless it is the root
-        (the first keyframe).
-        """
-        shared = {other: count for other, count in shared.items() if count > 0 and other != keyframe}
-        for other in self._shared[keyframe].keys() - shared.keys():
-            self._shared[other].pop(keyframe, None)
-        for other, count in shared.items():
-            self._shared[other][keyframe] = count
-        self._shared[keyframe] = shared
-        if self.parent[keyframe] is None and keyframe != self.root:
-            rooted = {other: count for other, count in shared.items() if self.reaches_root(other)}
-            if rooted:
-                self._attach(keyframe, _strongest(rooted))
+    def attach_to_tree(self, keyframe: int) -> None:
+        """Give ``keyframe``, if it has no parent yet and is not the root, its strongest link to
+        a keyframe that reaches the root as its parent (module docstring); else change nothing."""
+        if self.parent[keyframe] is not None or keyframe == self.root:
+            return
+        links = self._shared[keyframe]
+        rooted = {other: count for other, count in links.items() if self.reaches_root(other)}
+        if rooted:
+            self._attach(keyframe, _strongest(rooted))
 
     def change_shared(self, keyframe: int, others: Iterable[int], delta: int) -> None:
         """Add ``delta`` to the landmarks ``keyframe`` shares with each of ``others`` (both directions).

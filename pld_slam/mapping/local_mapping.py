@@ -215,7 +215,7 @@ class LocalMapping:
         self._refresh(self.map.lines, line_ids)
         self._recent.points = np.concatenate([self._recent.points, point_ids])
         self._recent.lines = np.concatenate([self._recent.lines, line_ids])
-        self.map.update_links(keyframe)
+        self.map.attach_to_tree(keyframe)
         return len(point_ids), len(line_ids)
 
     def _search_neighbours(self, keyframe: KeyFrame) -> int:
@@ -230,7 +230,7 @@ class LocalMapping:
             changes += self.fuse(kind, keyframe, np.setdiff1d(_live_ids(kind, theirs), own))
             self._refresh(kind, _live_ids(kind, getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
-            self.map.update_links(touched)
+            self.map.attach_to_tree(touched)
         return changes
 
     def _neighbour_targets(self, keyframe: KeyFrame) -> list[KeyFrame]:

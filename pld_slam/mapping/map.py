@@ -6,16 +6,16 @@ methods that keep the two copies of an observation in step (a keyframe's landmar
 feature, a landmark's ``{keyframe: feature}``, see `pld_slam.mapping.landmarks`), the
 observer counts, and the covisibility links: each observation added or removed changes
 the keyframe's link to every other observer of the landmark by one, so the links always
-count the landmarks two keyframes share (ORB-SLAM2 recounts them only at some steps).
-`update_links` recounts a keyframe's links from scratch and gives a new keyframe its
-spanning-tree parent.
+count the landmarks two keyframes share (ORB-SLAM2 recounts them only at some steps), and
+are never recounted: local mapping recounted them after every fusion, 8 of fusion's 40 ms per
+KITTI 06 keyframe (5 ms per frame), and the recount, checked at each of its 415 calls on
+KITTI 06 and 544 on raw 0005, never differed from them.
+`attach_to_tree` gives a keyframe its spanning-tree parent once it has links.
 
 A landmark left without observers dies (``alive`` False). A culled keyframe leaves its
 pose relative to its spanning-tree parent behind (`culled_keyframe_pose`), so that frames
 whose poses were stored relative to it still follow every later correction of the map.
 """
-
-from collections import Counter
 
 import numpy as np
 
@@ -70,7 +70,7 @@ class Map:
             landmarks = ids[features]
             ids[:] = -1
             self.add_observations(kind, keyframe, features, landmarks)
-        self.update_links(keyframe)
+        self.attach_to_tree(keyframe)
 
     def add_observations(
         self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, landmarks: np.ndarray
@@ -178,15 +178,9 @@ class Map:
             changes += 1
         return changes
 
-    def update_links(self, keyframe: KeyFrame) -> None:
-        """Recount the landmarks ``keyframe`` shares with every other keyframe (covisibility)."""
-        shared: Counter[int] = Counter()
-        for kind in self.kinds:
-            ids = getattr(keyframe, kind.IDS_FIELD)
-            for landmark in ids[ids >= 0].tolist():
-                shared.update(kind.observers[landmark].keys())
-        shared.pop(keyframe.id, None)
-        self.covisibility.set_links(keyframe.id, dict(shared))
+    def attach_to_tree(self, keyframe: KeyFrame) -> None:
+        """Give ``keyframe`` its spanning-tree parent if it has none yet (`CovisibilityGraph.attach_to_tree`)."""
+        self.covisibility.attach_to_tree(keyframe.id)
 
     def remove_keyframe(self, keyframe: KeyFrame) -> None:
         """Cull a keyframe: its observations go, its children re-attach, its pose stays relative to its parent.
