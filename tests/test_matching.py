@@ -18,6 +18,7 @@ from pld_slam.tracking.matching import (
     FrameMatches,
     match_lines,
     match_points,
+    pairs_within,
     predict_pixels,
 )
 
@@ -332,3 +333,29 @@ def test_a_line_with_an_endpoint_behind_the_current_camera_is_not_searched(line_
 
 
 # --- angles ---------------------------------------------------------------------------
+
+
+# --- candidate search -------------------------------------------------------------------
+
+
+def pairs_by_brute_force(predicted, usable, observed, radius):
+    """Every (query, train) within the radius, by query then observed column (ties by index)."""
+    by_column = np.argsort(observed[:, 0], kind="stable")
+    pairs = [(q, t) for q in np.flatnonzero(usable) for t in by_column
+             if np.sum((observed[t] - predicted[q]) ** 2) <= radius[q] ** 2]
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_pairs_within_finds_every_pair_in_the_circle_in_order(seed):
+    rng = np.random.default_rng(seed)
+    n_queries, n_observed = rng.integers(0, 40), rng.integers(0, 60)
+    predicted = np.column_stack([rng.uniform(-300, 800, n_queries), rng.uniform(-50, 330, n_queries)])
+    observed = np.round(rng.uniform(0, 280, (n_observed, 2)), int(rng.integers(0, 2)))
+    observed[: n_observed // 3] = observed[:1]  # repeated pixels: ties in column
+    radius = rng.uniform(1, 60, n_queries)
+    usable = rng.random(n_queries) < 0.8
+    query, train = pairs_within(predicted, usable, observed, radius)
+    expected_query, expected_train = pairs_by_brute_force(predicted, usable, observed, radius)
+    np.testing.assert_array_equal(query, expected_query)
+    np.testing.assert_array_equal(train, expected_train)

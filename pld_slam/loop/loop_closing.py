@@ -253,9 +253,8 @@ class LoopClosing:
             fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
         loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
         loop_side = (loop_side.points.ids, loop_side.lines.ids)
-        for keyframe_id in group:
-            for kind, ids in zip(self.map.kinds, loop_side):
-                fused += self._local_mapping.fuse(kind, self.map.keyframes[keyframe_id], ids)
+        for kind, ids in zip(self.map.kinds, loop_side):
+            fused += self._local_mapping.fuse(kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids)
         for keyframe_id in group:
             self.map.attach_to_tree(self.map.keyframes[keyframe_id])
         return fused

@@ -75,6 +75,7 @@ check as the reference solve (`pld_slam.tracking.static_world`), the pose it sta
 moving there are reported as dynamic too.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -265,53 +266,133 @@ def match_map_points(
 ) -> MapMatches:
     """Match the snapshot's points to the current left keypoints around their projections, within
     ``max_distance`` bits of Hamming distance and passing the ``ratio`` test (module docstring)."""
-    if len(points) == 0 or len(current) == 0:
-        return MapMatches(FrameMatches.empty(), np.zeros(len(points), dtype=bool))
+    return match_map_points_in_frames(camera, T_c_w[None], points, (current,), config, max_distance, ratio)[0]
+
+
+def match_map_points_in_frames(
+    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, frames: Sequence[LeftKeypoints],
+    config: Config, max_distance: int, ratio: float,
+) -> list[MapMatches]:
+    """`match_map_points` into F frames at once: poses ``T_c_w`` (F, 4, 4) and left keypoints ``frames``
+    (F); a `MapMatches` per frame, each what a search of that frame alone finds.
+
+    The frames are searched side by side, as one image (`_side_by_side`): local mapping
+    projects a keyframe's landmarks into its ~11 neighbours, and one set of array
+    operations for all of them costs far less than one per neighbour.
+    """
+    n_points, n_frames = len(points), len(frames)
     scale, levels = config.points.scale_factor, config.points.n_levels
-    p_c = transform_points(T_c_w, points.geometry)
+    p_c = np.stack([transform_points(T, points.geometry) for T in T_c_w]).reshape(-1, 3)  # frame by frame
     in_front = p_c[:, 2] > _MIN_DEPTH
     stereo_px = camera.project_stereo(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
     distance = np.linalg.norm(p_c, axis=1)
-    nearest = points.max_distance / scale ** (levels - 1)
+    max_distances = np.tile(points.max_distance, n_frames)
+    nearest = max_distances / scale ** (levels - 1)
     visible = (
         in_front
         & camera.inside_image(stereo_px[:, :2])
         & (distance >= _NEAREST_SCALE * nearest)
-        & (distance <= _FARTHEST_SCALE * points.max_distance)
-        & _within_viewing_angle(T_c_w, points.geometry, points.normals, config.mapping.max_viewing_angle)
+        & (distance <= _FARTHEST_SCALE * max_distances)
+        & _within_viewing_angle(T_c_w, points.geometry, points.normals, config.mapping.max_viewing_angle).ravel()
     )
-    octave = predicted_octaves(points.max_distance, distance, scale, levels)
+    octave = predicted_octaves(max_distances, distance, scale, levels)
     radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
-    query, train = pairs_within(stereo_px[:, :2], visible, current.uv, radius)
-    near_octave = np.abs(current.octave[train] - octave[query]) <= 1
-    right_error = np.abs(current.u_right[train] - stereo_px[query, 2])
+    keypoints = _concatenated_keypoints(frames)
+    predicted, observed = _side_by_side(camera, stereo_px[:, :2], keypoints.uv, n_points, _sizes(frames), radius)
+    query, train = pairs_within(predicted, visible, observed, radius)
+    near_octave = np.abs(keypoints.octave[train] - octave[query]) <= 1
+    right_error = np.abs(keypoints.u_right[train] - stereo_px[query, 2])
     same_right_column = np.isnan(right_error) | (right_error <= radius[query])
     keep = near_octave & same_right_column
     matches = select_matches(
-        query[keep], train[keep], points.descriptors, current.descriptors, current.uv,
+        query[keep], train[keep], np.tile(points.descriptors, (n_frames, 1)), keypoints.descriptors, keypoints.uv,
         max_distance, ratio,
     )
-    return MapMatches(matches, visible)
+    return _per_frame(matches, visible, n_points, _sizes(frames))
 
 
 def match_map_lines(
     camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, current: StereoLines, config: Config
 ) -> MapMatches:
     """Match the snapshot's lines to the current stereo lines around their projections (module docstring)."""
-    if len(lines) == 0 or len(current) == 0:
-        return MapMatches(FrameMatches.empty(), np.zeros(len(lines), dtype=bool))
-    predicted, in_front = predict_segments(camera, T_c_w, lines.geometry)
+    return match_map_lines_in_frames(camera, T_c_w[None], lines, (current,), config)[0]
+
+
+def match_map_lines_in_frames(
+    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, frames: Sequence[StereoLines], config: Config
+) -> list[MapMatches]:
+    """`match_map_lines` into F frames at once, as `match_map_points_in_frames` does for points."""
+    n_lines, n_frames = len(lines), len(frames)
+    predicted, in_front = (np.concatenate(arrays) for arrays in
+                           zip(*(predict_segments(camera, T, lines.geometry) for T in T_c_w)))
     midpoints = lines.geometry.mean(axis=1)
     visible = (
         in_front
         & camera.inside_image(0.5 * (predicted[:, :2] + predicted[:, 2:]))
-        & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle)
+        & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle).ravel()
     )
+    radius = config.mapping.line_search_radius_px
+    query_shift, feature_shift = _frame_strides(camera, n_lines, _sizes(frames), radius)
+    detected = np.concatenate([frame.endpoints for frame in frames]) + np.tile(feature_shift, 2)
     matches = match_predicted_segments(
-        predicted, visible, lines.descriptors, current, config.mapping.line_search_radius_px,
+        predicted + np.tile(query_shift, 2), visible, np.tile(lines.descriptors, (n_frames, 1)), detected,
+        np.concatenate([frame.descriptors for frame in frames]), radius,
         config.tracking.line_max_angle_change, config.tracking.max_line_distance, config.tracking.ratio,
     )
-    return MapMatches(matches, visible)
+    return _per_frame(matches, visible, n_lines, _sizes(frames))
+
+
+def _sizes(frames: Sequence[LeftKeypoints] | Sequence[StereoLines]) -> np.ndarray:
+    """Features (F,) of each frame."""
+    return np.array([len(frame) for frame in frames], dtype=np.int64)
+
+
+def _frame_strides(
+    camera: StereoCamera, n_queries: int, sizes: np.ndarray, radius: np.ndarray | float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Column shifts (F N, 2) of the queries and (K, 2) of the features (K = ``sizes.sum()``) that put
+    F frames side by side (`_side_by_side`)."""
+    stride = camera.width + 2.0 * float(np.max(radius, initial=0.0)) + 1.0
+    query_frame = np.repeat(np.arange(len(sizes)), n_queries)
+    feature_frame = np.repeat(np.arange(len(sizes)), sizes)
+    return (np.column_stack([stride * query_frame, np.zeros(len(query_frame))]),
+            np.column_stack([stride * feature_frame, np.zeros(len(feature_frame))]))
+
+
+def _side_by_side(
+    camera: StereoCamera, predicted: np.ndarray, observed: np.ndarray, n_queries: int, sizes: np.ndarray,
+    radius: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted pixels (F N, 2), frame by frame, and observed pixels (K, 2), frame by frame (``sizes``
+    (F,)), with frame f's columns shifted by f times the image width plus the widest window
+    (``radius`` (F N,)): no query's window reaches another frame's features."""
+    query_shift, feature_shift = _frame_strides(camera, n_queries, sizes, radius)
+    return predicted + query_shift, observed + feature_shift
+
+
+def _concatenated_keypoints(frames: Sequence[LeftKeypoints]) -> LeftKeypoints:
+    """The keypoints of ``frames`` one after the other (``n_stereo`` is meaningless: 0)."""
+    return LeftKeypoints(
+        uv=np.concatenate([frame.uv for frame in frames]),
+        octave=np.concatenate([frame.octave for frame in frames]),
+        descriptors=np.concatenate([frame.descriptors for frame in frames]),
+        u_right=np.concatenate([frame.u_right for frame in frames]),
+        n_stereo=0,
+    )
+
+
+def _per_frame(matches: FrameMatches, visible: np.ndarray, n_queries: int, sizes: np.ndarray) -> list[MapMatches]:
+    """Matches of queries (F N) to features (``sizes.sum()``) side by side, split into a `MapMatches` per
+    frame; in a frame without features no landmark counts as visible (nothing could be found)."""
+    frame = matches.previous // max(n_queries, 1)
+    first_feature = np.cumsum(sizes) - sizes
+    return [
+        MapMatches(
+            FrameMatches(matches.previous[frame == f] - f * n_queries, matches.current[frame == f] - first_feature[f]),
+            visible[f * n_queries : (f + 1) * n_queries] & (sizes[f] > 0),
+        )
+        for f in range(len(sizes))
+    ]
 
 
 def track_local_map(
@@ -405,9 +486,10 @@ def _map_observations(
 def _within_viewing_angle(
     T_c_w: np.ndarray, centres_w: np.ndarray, normals: np.ndarray, max_angle: float
 ) -> np.ndarray:
-    """Whether the camera sees landmarks at ``centres_w`` (N, 3) within ``max_angle`` of their ``normals`` (N,)."""
-    rays = centres_w - inverse(T_c_w)[:3, 3]
-    cosine = np.einsum("ij,ij->i", rays, normals) / np.maximum(np.linalg.norm(rays, axis=1), 1e-12)
+    """Whether cameras ``T_c_w`` (F, 4, 4) see landmarks at ``centres_w`` (N, 3) within ``max_angle`` of
+    their ``normals`` (N, 3): (F, N) bool."""
+    rays = centres_w[None] - inverse(T_c_w)[:, None, :3, 3]
+    cosine = np.einsum("fij,ij->fi", rays, normals) / np.maximum(np.linalg.norm(rays, axis=2), 1e-12)
     return cosine >= np.cos(max_angle)
 
 

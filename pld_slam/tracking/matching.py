@@ -23,6 +23,7 @@ from pld_slam.frontend.points import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.geometry.segments import oriented_angle_differences, segment_directions, segment_midpoints
+from pld_slam.jit import kernel
 
 _MIN_DEPTH = 0.1
 """A predicted feature closer than this to the current camera [m] is not searched for."""
@@ -65,22 +66,87 @@ def predict_pixels(camera: StereoCamera, T_c_p: np.ndarray, points_p: np.ndarray
 def pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray, radius: np.ndarray):
     """Candidate pairs ``(query, train)`` (P,) with ``|observed[train] - predicted[query]| <= radius[query]``.
 
-    Observed pixels are sorted by column; each usable query takes the ones whose column
-    lies within its radius (a ``searchsorted`` window), then keeps those within the
-    circle. Pairs come out sorted by query, then by observed column.
+    ``predicted`` (Q, 2) and ``observed`` (K, 2) pixels, ``usable`` (Q,) bool, ``radius`` (Q,)
+    [px]. Pairs come out sorted by query, then by observed column (ties by index). The
+    observed pixels are put in square cells as wide as the median radius, and each usable
+    query tests those of the cells its circle reaches (`_pairs_in_cells`). It replaced a
+    numpy search of the observed pixels sorted by column, whose windows ran the whole
+    image high, the largest cost of matching the local map and of local mapping's fusion.
+    On random pixels in KITTI's image size, 800 queries among 2,650 keypoints took 3.4
+    against 0.26 ms at 15 px (frame-to-frame radius) and 0.66 against 0.14 ms at 4 px (map
+    points), the 11 keyframes of one fusion side by side 13 against 3.8 ms; on KITTI 06 the
+    trajectory is the same (the pairs and their order are), fusion took 29 against 36 ms
+    per keyframe and matching the local map 26 against 28 ms per frame.
     """
-    order = np.argsort(observed[:, 0], kind="stable")
-    columns = observed[order, 0]
     queries = np.flatnonzero(usable)
-    low = np.searchsorted(columns, predicted[queries, 0] - radius[queries], side="left")
-    high = np.searchsorted(columns, predicted[queries, 0] + radius[queries], side="right")
-    counts = high - low
-    query = np.repeat(queries, counts)
-    offset_in_window = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    train = order[np.repeat(low, counts) + offset_in_window]
-    offsets = observed[train] - predicted[query]
-    within = np.einsum("pk,pk->p", offsets, offsets) <= radius[query] ** 2
-    return query[within], train[within]
+    if len(queries) == 0 or len(observed) == 0:
+        no_pairs = np.zeros(0, dtype=np.int64)
+        return no_pairs, no_pairs
+    cell = max(float(np.median(radius[queries])), 1.0)
+    return _pairs_in_cells(
+        np.ascontiguousarray(predicted, dtype=np.float64), queries, np.ascontiguousarray(observed, dtype=np.float64),
+        np.ascontiguousarray(radius, dtype=np.float64), cell,
+    )
+
+
+@kernel
+def _pairs_in_cells(predicted, queries, observed, radius, cell):
+    """`pairs_within` for the ``queries`` (Q',) int64, with observed pixels in square cells ``cell`` px wide."""
+    n_observed = observed.shape[0]
+    u0, v0 = observed[:, 0].min(), observed[:, 1].min()
+    n_columns = int((observed[:, 0].max() - u0) // cell) + 1
+    n_rows = int((observed[:, 1].max() - v0) // cell) + 1
+    cell_of = np.empty(n_observed, dtype=np.int64)
+    first_in_cell = np.zeros(n_rows * n_columns + 1, dtype=np.int64)
+    for k in range(n_observed):
+        cell_of[k] = int((observed[k, 1] - v0) // cell) * n_columns + int((observed[k, 0] - u0) // cell)
+        first_in_cell[cell_of[k] + 1] += 1
+    first_in_cell = np.cumsum(first_in_cell)
+    members = np.empty(n_observed, dtype=np.int64)
+    filled = first_in_cell[:-1].copy()
+    for k in range(n_observed):
+        members[filled[cell_of[k]]] = k
+        filled[cell_of[k]] += 1
+    capacity = max(16, 4 * len(queries))
+    query_out = np.empty(capacity, dtype=np.int64)
+    train_out = np.empty(capacity, dtype=np.int64)
+    n_pairs = 0
+    for query in queries:
+        u, v, r = predicted[query, 0], predicted[query, 1], radius[query]
+        first_column, last_column = max(int((u - r - u0) // cell), 0), min(int((u + r - u0) // cell), n_columns - 1)
+        first_row, last_row = max(int((v - r - v0) // cell), 0), min(int((v + r - v0) // cell), n_rows - 1)
+        start = n_pairs
+        for row in range(first_row, last_row + 1):
+            for column in range(first_column, last_column + 1):
+                c = row * n_columns + column
+                for m in range(first_in_cell[c], first_in_cell[c + 1]):
+                    k = members[m]
+                    du, dv = observed[k, 0] - u, observed[k, 1] - v
+                    if du * du + dv * dv <= r * r:
+                        if n_pairs == capacity:
+                            capacity *= 2
+                            query_out = _grown(query_out, capacity)
+                            train_out = _grown(train_out, capacity)
+                        query_out[n_pairs] = query
+                        train_out[n_pairs] = k
+                        n_pairs += 1
+        for i in range(start + 1, n_pairs):  # insertion sort of the query's pairs by (column, index)
+            k = train_out[i]
+            j = i - 1
+            while j >= start and (observed[train_out[j], 0] > observed[k, 0]
+                                  or (observed[train_out[j], 0] == observed[k, 0] and train_out[j] > k)):
+                train_out[j + 1] = train_out[j]
+                j -= 1
+            train_out[j + 1] = k
+    return query_out[:n_pairs].copy(), train_out[:n_pairs].copy()
+
+
+@kernel
+def _grown(values, capacity):
+    """``values`` (n,) copied into a new array of ``capacity`` (> n) entries."""
+    grown = np.empty(capacity, dtype=values.dtype)
+    grown[: len(values)] = values
+    return grown
 
 
 def select_matches(query, train, prev_descriptors, curr_descriptors, train_positions, max_distance, ratio):
@@ -142,7 +208,8 @@ def match_lines(
         return FrameMatches.empty()
     predicted, usable = predict_segments(camera, T_c_p, previous.endpoints_c)
     return match_predicted_segments(
-        predicted, usable, previous.descriptors, current, radius_px, max_angle_change, max_distance, ratio
+        predicted, usable, previous.descriptors, current.endpoints, current.descriptors, radius_px,
+        max_angle_change, max_distance, ratio,
     )
 
 
@@ -150,24 +217,24 @@ def match_predicted_segments(
     predicted: np.ndarray,
     usable: np.ndarray,
     descriptors: np.ndarray,
-    current: StereoLines,
+    detected: np.ndarray,
+    detected_descriptors: np.ndarray,
     radius_px: float,
     max_angle_change: float,
     max_distance: int,
     ratio: float,
 ) -> FrameMatches:
-    """Match segments predicted in the current image (M, 4) to its detected lines.
+    """Match segments predicted in the current image (M, 4) to its ``detected`` segments (K, 4).
 
     A candidate's midpoint lies within ``radius_px`` of the predicted midpoint and its
     oriented direction (LSD orients segments by their gradient, so a match keeps its
     orientation) within ``max_angle_change`` [rad] of the predicted one; ``usable`` (M,)
-    bool selects the predictions to search for, ``descriptors`` (M, 32) are theirs.
+    bool selects the predictions to search for, ``descriptors`` (M, 32) are theirs and
+    ``detected_descriptors`` (K, 32) the detected segments'.
     """
-    midpoints = segment_midpoints(current.endpoints)
+    midpoints = segment_midpoints(detected)
     radius = np.full(len(predicted), radius_px)
     query, train = pairs_within(segment_midpoints(predicted), usable, midpoints, radius)
-    turn = oriented_angle_differences(
-        segment_directions(predicted)[query], segment_directions(current.endpoints)[train]
-    )
+    turn = oriented_angle_differences(segment_directions(predicted)[query], segment_directions(detected)[train])
     query, train = query[turn <= max_angle_change], train[turn <= max_angle_change]
-    return select_matches(query, train, descriptors, current.descriptors, midpoints, max_distance, ratio)
+    return select_matches(query, train, descriptors, detected_descriptors, midpoints, max_distance, ratio)
