@@ -273,10 +273,10 @@ def match_map_points_in_frames(
     camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, frames: Sequence[LeftKeypoints],
     config: Config, max_distance: int, ratio: float,
 ) -> list[MapMatches]:
-    """`match_map_points` into F frames at once: poses ``T_c_w`` (F, 4, 4) and left keypoints ``frames``
-    (F); a `MapMatches` per frame, each what a search of that frame alone finds.
+    """`match_map_points` into F >= 1 frames at once: poses ``T_c_w`` (F, 4, 4) and left keypoints
+    ``frames`` (F); a `MapMatches` per frame, each what a search of that frame alone finds.
 
-    The frames are searched side by side, as one image (`_side_by_side`): local mapping
+    The frames are searched side by side, as one image (`_frame_strides`): local mapping
     projects a keyframe's landmarks into its ~11 neighbours, and one set of array
     operations for all of them costs far less than one per neighbour.
     """
@@ -298,8 +298,8 @@ def match_map_points_in_frames(
     octave = predicted_octaves(max_distances, distance, scale, levels)
     radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
     keypoints = _concatenated_keypoints(frames)
-    predicted, observed = _side_by_side(camera, stereo_px[:, :2], keypoints.uv, n_points, _sizes(frames), radius)
-    query, train = pairs_within(predicted, visible, observed, radius)
+    query_shift, feature_shift = _frame_strides(camera, n_points, _sizes(frames), radius)
+    query, train = pairs_within(stereo_px[:, :2] + query_shift, visible, keypoints.uv + feature_shift, radius)
     near_octave = np.abs(keypoints.octave[train] - octave[query]) <= 1
     right_error = np.abs(keypoints.u_right[train] - stereo_px[query, 2])
     same_right_column = np.isnan(right_error) | (right_error <= radius[query])
@@ -350,24 +350,15 @@ def _sizes(frames: Sequence[LeftKeypoints] | Sequence[StereoLines]) -> np.ndarra
 def _frame_strides(
     camera: StereoCamera, n_queries: int, sizes: np.ndarray, radius: np.ndarray | float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Column shifts (F N, 2) of the queries and (K, 2) of the features (K = ``sizes.sum()``) that put
-    F frames side by side (`_side_by_side`)."""
+    """Shifts (F N, 2) of N queries per frame and (K, 2) of the features (K = ``sizes.sum()``, ``sizes``
+    (F,) per frame) that put F frames side by side, as one image: frame f's columns move by f
+    times the image width plus the widest window (``radius``, scalar or per query), so that
+    no query's window reaches another frame's features."""
     stride = camera.width + 2.0 * float(np.max(radius, initial=0.0)) + 1.0
     query_frame = np.repeat(np.arange(len(sizes)), n_queries)
     feature_frame = np.repeat(np.arange(len(sizes)), sizes)
     return (np.column_stack([stride * query_frame, np.zeros(len(query_frame))]),
             np.column_stack([stride * feature_frame, np.zeros(len(feature_frame))]))
-
-
-def _side_by_side(
-    camera: StereoCamera, predicted: np.ndarray, observed: np.ndarray, n_queries: int, sizes: np.ndarray,
-    radius: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted pixels (F N, 2), frame by frame, and observed pixels (K, 2), frame by frame (``sizes``
-    (F,)), with frame f's columns shifted by f times the image width plus the widest window
-    (``radius`` (F N,)): no query's window reaches another frame's features."""
-    query_shift, feature_shift = _frame_strides(camera, n_queries, sizes, radius)
-    return predicted + query_shift, observed + feature_shift
 
 
 def _concatenated_keypoints(frames: Sequence[LeftKeypoints]) -> LeftKeypoints:
