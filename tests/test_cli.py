@@ -392,7 +392,10 @@ def test_ctrl_c_during_start_up_is_one_line_and_no_traceback(synthetic_sequence,
     time.sleep(1.0)  # the commands' imports take ~3 s
     child.send_signal(signal.SIGINT)
     _, stderr = child.communicate(timeout=300)
-    assert child.returncode == EXIT_INTERRUPTED, stderr
+    # The command exits with 130; in 1 to 3 of 10 runs on a busy machine (before and after
+    # the changes of 2026-11-25) the interpreter instead ended itself by SIGINT after the
+    # command had handled it (returncode -2), which a shell reports as 130 too.
+    assert child.returncode in (EXIT_INTERRUPTED, -signal.SIGINT), stderr
     assert "Traceback" not in stderr and stderr.startswith("interrupted") and stderr.count("\n") == 1
 
 
