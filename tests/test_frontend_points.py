@@ -18,6 +18,7 @@ from pld_slam.frontend.points import (
     detect_image_points,
     disparity_limits,
     match_stereo_points,
+    sad_along_row,
 )
 from pld_slam.geometry.camera import StereoCamera
 
@@ -229,3 +230,17 @@ def test_best_matches_judges_rivals_by_euclidean_distance_in_2d():
     position = np.array([[100.0, 50.0], [100.0, 50.3], [200.0, 50.0], [203.0, 50.0]])
     matches = best_matches(query, train, distance, position, max_distance=64, ratio=0.8)
     assert matches.query.tolist() == [0]
+
+
+@pytest.mark.parametrize("shift", [-3, 0, 2])
+def test_sad_along_row_is_smallest_at_the_true_shift_whatever_the_brightness_offset(shift):
+    rng = np.random.default_rng(7)
+    left = rng.integers(0, 200, (60, 120), dtype=np.uint8)
+    right = np.clip(np.roll(left, shift, axis=1).astype(np.int64) + 40, 0, 255).astype(np.uint8)  # brighter copy
+    left_px = np.array([[50, 30], [70, 20], [2, 30]])  # the last window leaves the image
+    right_u = left_px[:, 0]  # the initial match: no disparity
+    sad, inside = sad_along_row(left, right, left_px, right_u, half_window=5, radius=5)
+    assert inside.tolist() == [True, True, False]
+    assert sad.shape == (2, 11)
+    assert np.argmin(sad, axis=1).tolist() == [5 + shift, 5 + shift]
+    assert np.allclose(sad[:, 5 + shift], 0.0)  # the mean-free windows are equal

@@ -56,6 +56,7 @@ import numpy as np
 from pld_slam.config import PointsConfig
 from pld_slam.frontend.descriptors import DESCRIPTOR_BYTES, best_matches, hamming_distances, unique_train
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.jit import kernel
 
 ORB_EDGE_THRESHOLD = 19
 """Border [px at each level] where ORB finds no corner (ORB-SLAM2's EDGE_THRESHOLD)."""
@@ -308,10 +309,15 @@ def sad_along_row(
 
     Returns
     -------
-    sad : (K', 2 * radius + 1) float32
+    sad : (K', 2 * radius + 1) float64
         SAD per shift, for the keypoints whose windows lie inside both images.
     inside : (K,) bool
         Which keypoints those are.
+
+    One numba kernel (`_mean_free_sad`) computes every window in float64. It replaced numpy
+    on (K', shifts, pixels) float32 arrays: 800 windows of 11 x 11 px at 11 shifts took 3.4
+    against 8.3 ms, the front end 57 against 60 ms per KITTI 06 frame (run alone), with the
+    same trajectories (SAD within 0.002 of 12,000; the same minima).
     """
     height, width = left_level.shape
     reach = half_window + radius
@@ -324,22 +330,37 @@ def sad_along_row(
         & (right_u >= reach)
         & (right_u < width - reach)
     )
+    sad = _mean_free_sad(left_level, right_level, u[inside], v[inside], right_u[inside], half_window, radius)
+    return sad, inside
+
+
+@kernel
+def _mean_free_sad(left_level, right_level, u, v, right_u, half_window, radius):
+    """`sad_along_row` for windows inside both images: (K, 2 radius + 1) float64."""
     side = 2 * half_window + 1
-    window = np.arange(-half_window, half_window + 1)
-    strip = np.arange(-reach, reach + 1)
-    rows = (v[inside, None] + window)[:, :, None]
-    left_windows = left_level[rows, u[inside, None, None] + window].astype(np.float32)
-    right_strips = right_level[rows, right_u[inside, None, None] + strip].astype(np.float32)
-    count = left_windows.shape[0]
-    left_windows = left_windows.reshape(count, 1, side * side)
-    right_windows = (
-        np.lib.stride_tricks.sliding_window_view(right_strips, side, axis=2)
-        .transpose(0, 2, 1, 3)
-        .reshape(count, 2 * radius + 1, side * side)
-    )
-    difference = right_windows - right_windows.mean(axis=2, keepdims=True)
-    difference -= left_windows - left_windows.mean(axis=2, keepdims=True)
-    return np.abs(difference, out=difference).sum(axis=2), inside
+    n_pixels = side * side
+    sad = np.empty((len(u), 2 * radius + 1))
+    left = np.empty(n_pixels)
+    right = np.empty(n_pixels)
+    for k in range(len(u)):
+        i = 0
+        for dv in range(-half_window, half_window + 1):
+            for du in range(-half_window, half_window + 1):
+                left[i] = left_level[v[k] + dv, u[k] + du]
+                i += 1
+        left -= left.mean()
+        for shift in range(-radius, radius + 1):
+            i = 0
+            for dv in range(-half_window, half_window + 1):
+                for du in range(-half_window, half_window + 1):
+                    right[i] = right_level[v[k] + dv, right_u[k] + shift + du]
+                    i += 1
+            right_mean = right.mean()
+            total = 0.0
+            for i in range(n_pixels):
+                total += abs(right[i] - right_mean - left[i])
+            sad[k, shift + radius] = total
+    return sad
 
 
 def parabola_minimum(sad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
