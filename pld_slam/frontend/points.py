@@ -48,6 +48,7 @@ one, as monocular observations). `LeftKeypoints` holds every left keypoint, the 
 points first.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -153,6 +154,18 @@ class LeftKeypoints:
         """No keypoints."""
         return cls(np.zeros((0, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, DESCRIPTOR_BYTES), dtype=np.uint8),
                    np.zeros(0), 0)
+
+    @classmethod
+    def concatenate(cls, frames: Sequence["LeftKeypoints"]) -> "LeftKeypoints":
+        """The keypoints of ``frames`` one after the other, for searches over several frames at once
+        (their stereo rows are no longer first: ``n_stereo`` is 0)."""
+        return cls(
+            uv=np.concatenate([frame.uv for frame in frames]),
+            octave=np.concatenate([frame.octave for frame in frames]),
+            descriptors=np.concatenate([frame.descriptors for frame in frames]),
+            u_right=np.concatenate([frame.u_right for frame in frames]),
+            n_stereo=0,
+        )
 
 
 def detect_image_points(image: np.ndarray, config: PointsConfig) -> ImagePoints:

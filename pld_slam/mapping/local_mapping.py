@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pld_slam.config import Config
+from pld_slam.frontend import LeftKeypoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.keyframe import KeyFrame
@@ -72,6 +73,7 @@ from pld_slam.optim.point_reprojection import MIN_DEPTH
 from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF
 from pld_slam.timing import StageClock
 from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
+from pld_slam.tracking.matching import FrameMatches
 from pld_slam.tracking.observations import point_observations
 
 _SECOND_NEIGHBOURS = 5
@@ -271,22 +273,41 @@ class LocalMapping:
                                                self._config.tracking.max_point_distance, self._config.tracking.ratio)
         else:
             found = match_map_lines_in_frames(self._camera, poses, snapshot, features, self._config)
+        matches = [each.matches for each in found]
         changes = 0
-        for keyframe, matches in zip(keyframes, (each.matches for each in found)):
-            fits = self._reprojects(kind, keyframe, snapshot.geometry[matches.previous], matches.current)
-            changes += self.map.observe_or_fuse(kind, keyframe, matches.current[fits],
-                                                snapshot.ids[matches.previous[fits]], keep_matched=False)
+        for keyframe, matched, fits in zip(keyframes, matches, self._reprojects(kind, keyframes, snapshot, matches)):
+            changes += self.map.observe_or_fuse(kind, keyframe, matched.current[fits],
+                                                snapshot.ids[matched.previous[fits]], keep_matched=False)
         return changes
 
     def _reprojects(
-        self, kind: Landmarks, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray
-    ) -> np.ndarray:
-        """Whether each landmark (K, ...) reprojects onto its matched feature (K,) within the chi-square bound."""
+        self, kind: Landmarks, keyframes: Sequence[KeyFrame], snapshot: LandmarkSnapshot, matches: list[FrameMatches]
+    ) -> list[np.ndarray]:
+        """Per keyframe, whether each landmark of ``matches`` (snapshot rows to the keyframe's features)
+        reprojects onto its feature within the chi-square bound ((K,) bool per keyframe).
+
+        Points are tested in all the keyframes at once, each observation at its keyframe's pose."""
+        counts = [len(matched) for matched in matches]
         if isinstance(kind, PointLandmarks):
-            observed = point_observations(geometry, keyframe.features.keypoints, features, self._config.points)
+            keypoints = [keyframe.features.keypoints for keyframe in keyframes]
+            sizes = np.array([len(frame) for frame in keypoints])
+            first_feature = np.cumsum(sizes) - sizes
+            features = np.concatenate([matched.current + first for matched, first in zip(matches, first_feature)])
+            geometry = snapshot.geometry[np.concatenate([matched.previous for matched in matches])]
+            observed = point_observations(geometry, LeftKeypoints.concatenate(keypoints), features, self._config.points)
             rows = WhitenedRows.of(observed, LineObservations.empty(), LineObservations.empty())
-            point_chi2, _, _ = rows.chi2(rows.evaluate(self._camera, keyframe.T_c_w, keyframe.T_c_w, MIN_DEPTH))
-            return rows.point_inliers(point_chi2, CHI2_95_3DOF, CHI2_95_2DOF)
+            poses = np.stack([keyframe.T_c_w for keyframe in keyframes])
+            pose_of_row = np.repeat(np.arange(len(keyframes)), counts)
+            evaluation = rows.evaluate(self._camera, poses, poses, MIN_DEPTH, pose_of_row, np.zeros(0, dtype=np.int64))
+            point_chi2, _, _ = rows.chi2(evaluation)
+            fits = rows.point_inliers(point_chi2, CHI2_95_3DOF, CHI2_95_2DOF)
+            return np.split(fits, np.cumsum(counts)[:-1])
+        return [self._line_reprojects(keyframe, snapshot.geometry[matched.previous], matched.current)
+                for keyframe, matched in zip(keyframes, matches)]
+
+    def _line_reprojects(self, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray) -> np.ndarray:
+        """Whether each line (K, 2, 3) reprojects onto its matched line (K,) of ``keyframe`` within the
+        chi-square bound."""
         detected = keyframe.features.lines.endpoints[features]
         error = line_vertical_error(self._camera, keyframe.T_c_w, geometry[:, 0], geometry[:, 1],
                                     detected[:, :2], detected[:, 2:])

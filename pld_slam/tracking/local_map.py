@@ -297,7 +297,7 @@ def match_map_points_in_frames(
     )
     octave = predicted_octaves(max_distances, distance, scale, levels)
     radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
-    keypoints = _concatenated_keypoints(frames)
+    keypoints = LeftKeypoints.concatenate(frames)
     query_shift, feature_shift = _frame_strides(camera, n_points, _sizes(frames), radius)
     query, train = pairs_within(stereo_px[:, :2] + query_shift, visible, keypoints.uv + feature_shift, radius)
     near_octave = np.abs(keypoints.octave[train] - octave[query]) <= 1
@@ -359,17 +359,6 @@ def _frame_strides(
     feature_frame = np.repeat(np.arange(len(sizes)), sizes)
     return (np.column_stack([stride * query_frame, np.zeros(len(query_frame))]),
             np.column_stack([stride * feature_frame, np.zeros(len(feature_frame))]))
-
-
-def _concatenated_keypoints(frames: Sequence[LeftKeypoints]) -> LeftKeypoints:
-    """The keypoints of ``frames`` one after the other (``n_stereo`` is meaningless: 0)."""
-    return LeftKeypoints(
-        uv=np.concatenate([frame.uv for frame in frames]),
-        octave=np.concatenate([frame.octave for frame in frames]),
-        descriptors=np.concatenate([frame.descriptors for frame in frames]),
-        u_right=np.concatenate([frame.u_right for frame in frames]),
-        n_stereo=0,
-    )
 
 
 def _per_frame(matches: FrameMatches, visible: np.ndarray, n_queries: int, sizes: np.ndarray) -> list[MapMatches]:
