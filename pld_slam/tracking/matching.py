@@ -27,6 +27,10 @@ from pld_slam.jit import kernel
 
 _MIN_DEPTH = 0.1
 """A predicted feature closer than this to the current camera [m] is not searched for."""
+_MAX_CELLS = 1_000_000
+"""`pairs_within` widens its cells so that the observed pixels' extent holds at most this many
+(8 MB of cell starts), whatever the pixels' spread; an image, or a fusion's 11 keyframes
+side by side, holds fewer at the median radius."""
 
 
 @dataclass(frozen=True)
@@ -82,7 +86,8 @@ def pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray
     if len(queries) == 0 or len(observed) == 0:
         no_pairs = np.zeros(0, dtype=np.int64)
         return no_pairs, no_pairs
-    cell = max(float(np.median(radius[queries])), 1.0)
+    extent = np.ptp(observed, axis=0) + 1.0
+    cell = max(float(np.median(radius[queries])), 1.0, float(np.sqrt(extent[0] * extent[1] / _MAX_CELLS)))
     return _pairs_in_cells(
         np.ascontiguousarray(predicted, dtype=np.float64), queries, np.ascontiguousarray(observed, dtype=np.float64),
         np.ascontiguousarray(radius, dtype=np.float64), cell,
