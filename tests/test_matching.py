@@ -359,3 +359,10 @@ def test_pairs_within_finds_every_pair_in_the_circle_in_order(seed):
     expected_query, expected_train = pairs_by_brute_force(predicted, usable, observed, radius)
     np.testing.assert_array_equal(query, expected_query)
     np.testing.assert_array_equal(train, expected_train)
+
+
+def test_pairs_within_ignores_non_finite_predictions_and_copes_with_widely_spread_pixels():
+    observed = np.array([[0.0, 0.0], [1e7, 1e7], [5.0, 5.0]])  # a grid of 4 px cells would need 6e12 of them
+    predicted = np.array([[4.0, 4.0], [np.nan, 1.0], [np.inf, 3.0], [1e7 + 1.0, 1e7]])
+    query, train = pairs_within(predicted, np.ones(4, dtype=bool), observed, np.full(4, 2.0))
+    assert query.tolist() == [0, 3] and train.tolist() == [2, 1]
