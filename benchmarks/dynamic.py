@@ -29,6 +29,10 @@ Sections (``--section``, all by default):
                                  [--set tracking.reference_max_age=1 ...]
 """
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS, as `pld-slam` runs (`pld_slam`)
+
 import argparse
 import tempfile
 from pathlib import Path

@@ -30,6 +30,10 @@ Time only on an otherwise idle machine.
                               [--frames 360] [--loop2-frames 720] [--out /tmp/pld_slam_loop]
 """
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS, as `pld-slam` runs (`pld_slam`)
+
 import argparse
 import tempfile
 import time

@@ -28,6 +28,10 @@ Time only on an otherwise idle machine.
                                  [--out /tmp/pld_slam_mapping] [--set KEY=VALUE ...]
 """
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS, as `pld-slam` runs (`pld_slam`)
+
 import argparse
 import multiprocessing
 import resource

@@ -9,12 +9,16 @@ repository root:
 
     python benchmarks/pose_solver_speed.py [--calls 30] [--seed 0]
 
-Timings depend on the BLAS threads (``OPENBLAS_NUM_THREADS``, printed under the table) and
-on what else runs on the machine: OpenBLAS threads stall when the other core is busy.
+Timings depend on the BLAS threads (``OPENBLAS_NUM_THREADS``, printed under the table; one
+unless set, as the ``pld-slam`` command runs) and on what else runs on the machine: OpenBLAS
+threads stall when the other core is busy.
 """
 
-import argparse
 import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS, as `pld-slam` runs (`pld_slam`)
+
+import argparse
 import time
 from dataclasses import dataclass
 

@@ -8,6 +8,10 @@ Runs the pipeline (as ``pld-slam run``) on every real extract found in ``$PLD_SL
     python benchmarks/tracking.py [--frames-synthetic 100] [--out /tmp/pld_slam_bench]
 """
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS, as `pld-slam` runs (`pld_slam`)
+
 import argparse
 import tempfile
 from pathlib import Path
