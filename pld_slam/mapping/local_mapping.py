@@ -218,7 +218,6 @@ class LocalMapping:
         self._refresh(self.map.lines, line_ids)
         self._recent.points = np.concatenate([self._recent.points, point_ids])
         self._recent.lines = np.concatenate([self._recent.lines, line_ids])
-        self.map.attach_to_tree(keyframe)
         return len(point_ids), len(line_ids)
 
     def _search_neighbours(self, keyframe: KeyFrame) -> int:
@@ -275,16 +274,19 @@ class LocalMapping:
             found = match_map_lines_in_frames(self._camera, poses, snapshot, features, self._config)
         matches = [each.matches for each in found]
         changes = 0
-        for keyframe, matched, fits in zip(keyframes, matches, self._reprojects(kind, keyframes, snapshot, matches)):
+        fits_of = self._reprojects(kind, keyframes, poses, snapshot, matches)
+        for keyframe, matched, fits in zip(keyframes, matches, fits_of):
             changes += self.map.observe_or_fuse(kind, keyframe, matched.current[fits],
                                                 snapshot.ids[matched.previous[fits]], keep_matched=False)
         return changes
 
     def _reprojects(
-        self, kind: Landmarks, keyframes: Sequence[KeyFrame], snapshot: LandmarkSnapshot, matches: list[FrameMatches]
+        self, kind: Landmarks, keyframes: Sequence[KeyFrame], poses: np.ndarray, snapshot: LandmarkSnapshot,
+        matches: list[FrameMatches],
     ) -> list[np.ndarray]:
         """Per keyframe, whether each landmark of ``matches`` (snapshot rows to the keyframe's features)
-        reprojects onto its feature within the chi-square bound ((K,) bool per keyframe).
+        reprojects onto its feature within the chi-square bound ((K,) bool per keyframe); ``poses``
+        (F, 4, 4) are the keyframes' ``T_c_w``.
 
         Points are tested in all the keyframes at once, each observation at its keyframe's pose."""
         counts = [len(matched) for matched in matches]
@@ -296,7 +298,6 @@ class LocalMapping:
             geometry = snapshot.geometry[np.concatenate([matched.previous for matched in matches])]
             observed = point_observations(geometry, LeftKeypoints.concatenate(keypoints), features, self._config.points)
             rows = WhitenedRows.of(observed, LineObservations.empty(), LineObservations.empty())
-            poses = np.stack([keyframe.T_c_w for keyframe in keyframes])
             pose_of_row = np.repeat(np.arange(len(keyframes)), counts)
             evaluation = rows.evaluate(self._camera, poses, poses, MIN_DEPTH, pose_of_row, np.zeros(0, dtype=np.int64))
             point_chi2, _, _ = rows.chi2(evaluation)

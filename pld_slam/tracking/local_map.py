@@ -280,7 +280,7 @@ def match_map_points_in_frames(
     projects a keyframe's landmarks into its ~11 neighbours, and one set of array
     operations for all of them costs far less than one per neighbour.
     """
-    n_points, n_frames = len(points), len(frames)
+    n_points, n_frames, sizes = len(points), len(frames), _sizes(frames)
     scale, levels = config.points.scale_factor, config.points.n_levels
     p_c = np.stack([transform_points(T, points.geometry) for T in T_c_w]).reshape(-1, 3)  # frame by frame
     in_front = p_c[:, 2] > _MIN_DEPTH
@@ -298,7 +298,7 @@ def match_map_points_in_frames(
     octave = predicted_octaves(max_distances, distance, scale, levels)
     radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
     keypoints = LeftKeypoints.concatenate(frames)
-    query_shift, feature_shift = _frame_strides(camera, n_points, _sizes(frames), radius)
+    query_shift, feature_shift = _frame_strides(camera, n_points, sizes, radius)
     query, train = pairs_within(stereo_px[:, :2] + query_shift, visible, keypoints.uv + feature_shift, radius)
     near_octave = np.abs(keypoints.octave[train] - octave[query]) <= 1
     right_error = np.abs(keypoints.u_right[train] - stereo_px[query, 2])
@@ -308,7 +308,7 @@ def match_map_points_in_frames(
         query[keep], train[keep], np.tile(points.descriptors, (n_frames, 1)), keypoints.descriptors, keypoints.uv,
         max_distance, ratio,
     )
-    return _per_frame(matches, visible, n_points, _sizes(frames))
+    return _per_frame(matches, visible, n_points, sizes)
 
 
 def match_map_lines(
@@ -322,7 +322,7 @@ def match_map_lines_in_frames(
     camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, frames: Sequence[StereoLines], config: Config
 ) -> list[MapMatches]:
     """`match_map_lines` into F frames at once, as `match_map_points_in_frames` does for points."""
-    n_lines, n_frames = len(lines), len(frames)
+    n_lines, n_frames, sizes = len(lines), len(frames), _sizes(frames)
     predicted, in_front = (np.concatenate(arrays) for arrays in
                            zip(*(predict_segments(camera, T, lines.geometry) for T in T_c_w)))
     midpoints = lines.geometry.mean(axis=1)
@@ -332,14 +332,14 @@ def match_map_lines_in_frames(
         & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle).ravel()
     )
     radius = config.mapping.line_search_radius_px
-    query_shift, feature_shift = _frame_strides(camera, n_lines, _sizes(frames), radius)
+    query_shift, feature_shift = _frame_strides(camera, n_lines, sizes, radius)
     detected = np.concatenate([frame.endpoints for frame in frames]) + np.tile(feature_shift, 2)
     matches = match_predicted_segments(
         predicted + np.tile(query_shift, 2), visible, np.tile(lines.descriptors, (n_frames, 1)), detected,
         np.concatenate([frame.descriptors for frame in frames]), radius,
         config.tracking.line_max_angle_change, config.tracking.max_line_distance, config.tracking.ratio,
     )
-    return _per_frame(matches, visible, n_lines, _sizes(frames))
+    return _per_frame(matches, visible, n_lines, sizes)
 
 
 def _sizes(frames: Sequence[LeftKeypoints] | Sequence[StereoLines]) -> np.ndarray:
