@@ -317,9 +317,9 @@ class MappingConfig:
         0.0, 1.0
     )
     redundant_observers: int = _param(3, "other keyframes that make a landmark of a keyframe redundant", 1)
-    dynamic_hits: int = _param(
-        2, "a landmark matched to features labelled dynamic in this many frames, and in at least half of its "
-        "matches, is removed", 1
+    dynamic_streak: int = _param(
+        2, "a landmark matched to a feature labelled dynamic, or lying under one, in this many frames since "
+        "tracking last found it static is removed", 1
     )
 
 

@@ -272,23 +272,25 @@ def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
     assert insertion.culled_landmarks == 0 and mapping.map.points.alive.tolist() == [True, True]
 
 
-def test_a_landmark_matched_to_dynamic_features_often_enough_and_at_least_as_often_as_found_is_removed():
-    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_hits=2))
+def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_removed():
+    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2))
     mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5), lines=range(2)))
     for _ in range(3):  # the landmarks are no longer recent: only the dynamic rule can remove them
         mapping.insert_keyframe(empty_keyframe(mapping))
-    # (dynamic hits, found) per point: (2, 0) and (2, 2) go; (2, 3), (1, 0) and (0, 0) stay.
-    counts = [(2, 0), (2, 2), (2, 3), (1, 0), (0, 0)]
+    # What tracking saw of each point, frame by frame: found static (F), seen moving (M), or neither (-).
+    # A parked car found for long, then moving (0); moving twice, found in between (1); moving twice
+    # with a miss between (2); moving once (3); found throughout (4).
+    sightings = ["FFFFFMM", "MFM----", "M-M----", "M------", "FFFFFFF"]
     nothing = np.zeros(0, dtype=np.int64)
-    for frame in range(3):
-        dynamic = np.array([p for p, (hits, _) in enumerate(counts) if frame < hits], dtype=np.int64)
-        found = np.array([p for p, (_, times) in enumerate(counts) if frame < times], dtype=np.int64)
+    for frame in range(7):
+        found = np.array([p for p, seen in enumerate(sightings) if seen[frame] == "F"], dtype=np.int64)
+        moving = np.array([p for p, seen in enumerate(sightings) if seen[frame] == "M"], dtype=np.int64)
         moving_line = np.array([0] if frame < 2 else [], dtype=np.int64)
         mapping.record_tracking(
-            visible=(np.arange(5), np.arange(2)), found=(found, nothing), dynamic=(dynamic, moving_line)
+            visible=(np.arange(5), np.arange(2)), found=(found, nothing), dynamic=(moving, moving_line)
         )
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
-    assert mapping.map.points.alive.tolist() == [False, False, True, True, True]
+    assert mapping.map.points.alive.tolist() == [False, True, False, True, True]
     assert mapping.map.lines.alive.tolist() == [False, True]
     assert insertion.culled_landmarks == 3
     check_map_consistency(mapping.map)

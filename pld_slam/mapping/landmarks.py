@@ -50,7 +50,9 @@ class Landmarks:
     - ``normal``: (N, 3) mean unit viewing direction from the observing cameras (world);
     - ``visible``, ``found``: (N,) frames in whose view the landmark was predicted, and in
       how many of them tracking matched it (the culling test of ORB-SLAM2);
-    - ``dynamic_hits``: (N,) frames in which it matched a feature labelled dynamic;
+    - ``dynamic_streak``: (N,) frames since tracking last found it among the static
+      features in which it matched a feature labelled dynamic or lay under one
+      (`pld_slam.tracking.local_map.landmarks_under_movers`);
     - ``first_keyframe``: (N,) id of the keyframe that created it;
     - ``n_observers``: (N,) keyframes observing it;
     - ``alive``: (N,) bool.
@@ -61,7 +63,7 @@ class Landmarks:
     normal = _Column()
     visible = _Column()
     found = _Column()
-    dynamic_hits = _Column()
+    dynamic_streak = _Column()
     first_keyframe = _Column()
     n_observers = _Column()
     alive = _Column()
@@ -93,7 +95,7 @@ class Landmarks:
             "normal": ((3,), np.float64, 0.0),
             "visible": ((), np.int64, 0),
             "found": ((), np.int64, 0),
-            "dynamic_hits": ((), np.int64, 0),
+            "dynamic_streak": ((), np.int64, 0),
             "first_keyframe": ((), np.int64, -1),
             "n_observers": ((), np.int64, 0),
             "alive": ((), np.bool_, False),

@@ -129,7 +129,8 @@ class Map:
         """Fuse landmark ``old`` into ``new``: its observations move to ``new``, then it dies.
 
         A keyframe observing both keeps its observation of ``new``. Found and visible
-        counts add up, as in ORB-SLAM2's ``Replace``.
+        counts add up, as in ORB-SLAM2's ``Replace``; the dynamic streak is the longer of
+        the two (the fused landmark is as suspect as the more suspect of them).
         """
         if old == new:
             return
@@ -145,7 +146,7 @@ class Map:
                 kind.n_observers[new] += 1
         kind.found[new] += kind.found[old]
         kind.visible[new] += kind.visible[old]
-        kind.dynamic_hits[new] += kind.dynamic_hits[old]
+        kind.dynamic_streak[new] = max(kind.dynamic_streak[new], kind.dynamic_streak[old])
         kind.observers[old] = {}
         kind.n_observers[old] = 0
         kind.alive[old] = False

@@ -1,0 +1,61 @@
+"""A landmark missed where a mover now stands at its depth (`pld_slam.tracking.local_map.landmarks_under_movers`)."""
+
+import numpy as np
+
+from pld_slam.frontend import StereoPoints
+from pld_slam.geometry.camera import StereoCamera
+from pld_slam.tracking.local_map import MOVER_DEPTH_TOLERANCE, LandmarkSnapshot, landmarks_under_movers
+
+CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
+RADIUS_PX = 64.0
+
+
+def snapshot(points_w: np.ndarray) -> LandmarkSnapshot:
+    n = len(points_w)
+    return LandmarkSnapshot(
+        ids=np.arange(10, 10 + n), geometry=points_w, descriptors=np.zeros((n, 32), np.uint8),
+        normals=np.tile([0.0, 0.0, 1.0], (n, 1)), max_distance=np.full(n, 100.0),
+    )
+
+
+def stereo_points(points_c: np.ndarray) -> StereoPoints:
+    disparity = CAMERA.fx * CAMERA.baseline / points_c[:, 2]
+    uv = CAMERA.project(points_c)
+    n = len(points_c)
+    return StereoPoints(uv=uv, octave=np.zeros(n, np.int64), descriptors=np.zeros((n, 32), np.uint8),
+                        disparity=disparity, u_right=uv[:, 0] - disparity, points_c=points_c)
+
+
+def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mover():
+    # Camera at the world origin looking down +z; landmarks at least 100 px apart in the image, and
+    # what stands near each one's pixel now (all within 10 px of it but the last):
+    landmarks = np.array([
+        [0.0, 0.0, 20.0],  # 0: missed, a mover 1 m deeper: under a mover
+        [-6.0, 0.0, 20.0],  # 1: missed, a mover 10 m nearer, in front of it: hidden, not under
+        [6.0, 0.0, 10.0],  # 2: missed, a mover 10 m behind it: not under
+        [-6.0, -5.0, 20.0],  # 3: missed, a static point at its depth: not under
+        [0.0, -5.0, 20.0],  # 4: found again, a mover at its depth: not missed
+        [6.0, -5.0, 20.0],  # 5: not predicted in view
+        [0.0, 5.0, 20.0],  # 6: missed, a mover at its depth 100 px away
+    ])
+    mover_points = np.array([[0.5, 0.0, 21.0], [-2.875, 0.0, 10.0], [11.75, 0.0, 20.0], [0.3, -5.0, 20.0],
+                             [5.0, 5.0, 20.0]])
+    static_points = np.array([[-5.9, -5.0, 20.0]])
+    points = stereo_points(np.concatenate([mover_points, static_points]))
+    dynamic = np.array([True] * len(mover_points) + [False])
+    visible = np.array([True, True, True, True, True, False, True])
+    ids = snapshot(landmarks).ids
+    under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmarks), visible, ids[[4]], points, dynamic,
+                                   RADIUS_PX)
+    assert under.tolist() == [ids[0]]
+
+
+def test_the_depth_band_is_relative_to_the_landmark_depth():
+    landmark = np.array([[0.0, 0.0, 30.0]])
+    inside = 30.0 * (1.0 + 0.9 * MOVER_DEPTH_TOLERANCE)
+    outside = 30.0 * (1.0 + 1.1 * MOVER_DEPTH_TOLERANCE)
+    for depth, expected in ((inside, [10]), (outside, [])):
+        points = stereo_points(np.array([[0.3, 0.0, depth]]))
+        under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmark), np.array([True]), np.zeros(0, np.int64),
+                                       points, np.array([True]), RADIUS_PX)
+        assert under.tolist() == expected, depth
