@@ -17,6 +17,8 @@ pose relative to its spanning-tree parent behind (`culled_keyframe_pose`), so th
 whose poses were stored relative to it still follow every later correction of the map.
 """
 
+from itertools import chain
+
 import numpy as np
 
 from pld_slam.frontend.descriptors import hamming_distances
@@ -218,14 +220,12 @@ class Map:
         within a group in the order the observations were made (the creating keyframe
         first while it observes the landmark; fusion appends the observations it moves).
         """
-        rows, keyframes, features = [], [], []
-        for row, landmark in enumerate(landmarks.tolist()):
-            for keyframe, feature in kind.observers[landmark].items():
-                rows.append(row)
-                keyframes.append(keyframe)
-                features.append(feature)
-        return (np.array(rows, dtype=np.int64), np.array(keyframes, dtype=np.int64),
-                np.array(features, dtype=np.int64))
+        observers = [kind.observers[landmark] for landmark in landmarks.tolist()]
+        counts = np.fromiter(map(len, observers), dtype=np.int64, count=len(observers))
+        total = int(counts.sum())
+        keyframes = np.fromiter(chain.from_iterable(observers), dtype=np.int64, count=total)
+        features = np.fromiter(chain.from_iterable(map(dict.values, observers)), dtype=np.int64, count=total)
+        return np.repeat(np.arange(len(observers), dtype=np.int64), counts), keyframes, features
 
     def observation_weights(self, kind: Landmarks, landmarks: np.ndarray) -> np.ndarray:
         """Weight (K,) of the observations of ``landmarks`` (K,): 2 per stereo observation, 1 per left-image-only one.
