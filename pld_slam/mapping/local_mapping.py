@@ -22,11 +22,11 @@ a method below:
    static ones (ours until then) kept its landmarks long after it left. On the synthetic
    ``parked_then_moving`` (seeds 0-2, ``benchmarks/dynamic.py --section parked``), of the
    240 landmarks made on the pulling-out cars while they rested, those still alive 5
-   keyframes after each started went from 76 to 21, and those made after the start from
-   52 to 7; the streak alone changed neither (those landmarks are missed, not matched).
+   keyframes after each started went from 76 to 18, and those made after the start from
+   52 to 4; the streak alone changed neither (those landmarks are missed, not matched).
    Mean ATE, before and after: synthetic static, dynamic and low texture (150 frames,
-   seeds 0-2) within 3 %; convoy 0.073 and 0.076 m (true masks: 0.063 m), crossing 0.013 m
-   both; KITTI 06 0.0305 and 0.0307 m, raw 0005 0.0863 and 0.0861 m.
+   seeds 0-2) within 1 %; convoy 0.073 and 0.075 m (true masks: 0.063 m), crossing 0.013 m
+   both; KITTI 06 0.0305 m both, raw 0005 0.0863 and 0.0860 m.
 3. `_create_landmarks`: the paper creates landmarks "for the new common features
    observed in the current KF and previous KF". A stereo keyframe has the depth of every
    stereo point and line already, so, as ORB-SLAM2 does for stereo, we create a landmark
