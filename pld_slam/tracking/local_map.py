@@ -478,12 +478,14 @@ def landmarks_under_movers(
     the landmark was predicted, at the landmark's depth, can: the thing there now moves.
     The background a mover hides lies behind it, outside the depth band, and a static
     landmark found again ends the streak that local mapping removes landmarks by
-    (`pld_slam.mapping.local_mapping`, step 2). The radius is one
-    cell of the dynamic grid (``filters.point_grid_cell_width``, 64 px), the reach of the
-    grid's own evidence (a hot cell marks points in its neighbours); half of it left 33
-    landmarks on the synthetic ``parked_then_moving`` cars where it left 28, for the same
-    ATE on the other synthetic scenarios. Counting only the landmarks matched to nothing as
-    missed (a rejected match not) left 28 where this leaves 22.
+    (`pld_slam.mapping.local_mapping`, step 2).
+
+    The radius is one cell of the dynamic grid (``filters.point_grid_cell_width``, 64 px),
+    the reach of the grid's own evidence (a hot cell marks points in its neighbours). On
+    the synthetic ``parked_then_moving`` cars (seeds 0-2, landmarks alive 5 keyframes after
+    each started), counting only the landmarks matched to nothing as missed, half the
+    radius left 33 where the cell left 28, for the same ATE on the other synthetic
+    scenarios; counting rejected matches as missed too, as here, leaves 22.
     """
     missed = visible & ~np.isin(points.ids, found)
     movers = np.flatnonzero(dynamic)
