@@ -433,19 +433,19 @@ def track_local_map(
     if check_static_world and solution.success:
         static = static_world_solution(camera, solution, T_c_w_init, points, lines, True, pose_options, config)
         solution, moving_ids = static.solution, map_points.landmarks[static.moving[: len(map_points)]]
-    dynamic_point_ids = local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous]
+    map_inliers = solution.inliers.points[: len(map_points)]
+    matched_to_movers = local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous]
     under_movers = landmarks_under_movers(
-        camera, solution.T_c_w, local_map.points, point_matches.visible,
-        map_points.landmarks[solution.inliers.points[: len(map_points)]], features.points,
-        dynamic_points[: len(features.points)], config.filters.point_grid_cell_width,
+        camera, solution.T_c_w, local_map.points, point_matches.visible, map_points.landmarks[map_inliers],
+        features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width,
     )
     return LocalMapTracking(
         solution=solution,
-        point_ids=_inlier_ids(len(keypoints), map_points, solution.inliers.points[: len(map_points)]),
+        point_ids=_inlier_ids(len(keypoints), map_points, map_inliers),
         line_ids=_inlier_ids(len(features.lines), map_lines, solution.inliers.lines[: len(map_lines)]),
         visible_point_ids=local_map.points.ids[point_matches.visible],
         visible_line_ids=local_map.lines.ids[line_matches.visible],
-        dynamic_point_ids=np.union1d(np.union1d(dynamic_point_ids, moving_ids), under_movers),
+        dynamic_point_ids=np.unique(np.concatenate([matched_to_movers, moving_ids, under_movers])),
         dynamic_line_ids=local_map.lines.ids[_dynamic(line_matches.matches, dynamic_lines).previous],
         point_matches=len(map_points),
         line_matches=len(map_lines),
