@@ -112,7 +112,8 @@ class LinesConfig:
     vertical_error: bool = _param(True, "line vertical error: endpoint distance to the detected line")
     horizontal_error: bool = _param(True, "line horizontal error: endpoint error along the line")
     detector: Literal["lsd", "fld", "edlines"] = _param(
-        "lsd", "segment detector: OpenCV's LSD, FastLineDetector or EDLines (EdgeDrawing)"
+        "lsd", "segment detector: OpenCV's LSD (the paper's), or the faster FastLineDetector or EDLines "
+        "(EdgeDrawing), their segments moved onto sub-pixel edges"
     )
     detection_scale: float = _param(
         0.5, "every detector works on the image scaled by this (LSD's own default: 0.8)", 0.1, 1.0
