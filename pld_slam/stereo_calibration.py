@@ -49,27 +49,21 @@ each (`estimate_disparity_offset`):
    anchors' own minima about the pooled one (`_spread_over_anchors`). On KITTI 06 the
    first is 0.020 px, the second 0.074 px; on synthetic streets 0.025 and 0.032-0.038 px.
 5. The offset is used only when the minimum is not at the bound, its deviation is under
-   ``calibration.max_sigma_px`` and it lies ``calibration.min_significance`` deviations
-   from zero; otherwise the calibration's offset stays (a camera that hardly moved, too
-   few anchors, or no clear offset). A wrong correction costs about as much as a missing
-   one: on KITTI 06 the ATE is 0.190 m uncorrected, 0.134, 0.082, 0.037 and 0.032 m at
-   -0.05, -0.10, -0.15 and -0.20 px. So the estimate should be applied where a real
-   offset is the likelier explanation. With deviations of 0.05-0.1 px and real offsets
-   of about 0.2 px, applying it and keeping the calibration have the same expected error
-   at 2.0 deviations when an exact rig and one with an offset are equally likely
-   beforehand, and at 1.6 when the offset is likelier (7 in 10). The default is 2.5
-   (two-sided, 1.2 %): a rig may be exact. Synthetic streets are (640 x 480, ``bf`` 192
-   px m): seeds 0-2 (150 frames) gave +0.091, +0.004 and +0.062 px (2.3, 0.1 and 1.7
-   deviations), and their family file switches the estimate off. KITTI's rectified rigs
-   are not: every window of KITTI 06 finds -0.14 to -0.18 px (its ground-truth fit:
-   -0.146): frames 0-50 -0.160 px (1.94 deviations; ATE 0.198 m uncorrected, 0.034 m
-   corrected), from frame 10 -0.155 (1.93; 0.156 and 0.029 m), every second frame
-   -0.181 (2.9; 0.033 m), while the 26 frames from frame 25 say -0.272 with a deviation
-   of 0.134 px (not used; 0.11 m). The KITTI family file therefore takes 1.5. (With the
-   parabola sub-pixel fit that `pld_slam.frontend.points.sad_minimum` replaced, pixel
-   locking pulled the KITTI 06 estimate to -0.197 px at 2.65 deviations and synthetic
-   seed 0 to +0.146 px at 3.1.) KITTI raw 0005 (slow, turning, movers) and the EuRoC
-   extracts say too little (deviations 0.13-0.59 px) and keep their calibration.
+   ``calibration.max_sigma_px`` and it lies ``calibration.min_significance`` (2.5)
+   deviations from zero (a two-sided test at the 1.2 % level); otherwise the
+   calibration's offset stays (a camera that hardly moved, too few anchors, or no clear
+   offset). The test matters: a wrong correction costs as much as a missing one. On
+   synthetic streets (exact calibration, 640 x 480, ``bf`` 192 px m), seeds 0-2 gave
+   +0.040, +0.024 and -0.064 px (1.1, 0.8 and 1.1 deviations), and using the first made
+   the trajectory 0.5 % too long (ATE 0.027 -> 0.120 m); a 30-frame 320 x 240 street gave
+   +0.106 px at 2.0 deviations (the estimate is least reliable on small images, where
+   disparities are small). KITTI 06 gave -0.197 px (2.65 deviations; ATE 0.190 ->
+   0.029 m); its every-second-frame copy -0.141 px (2.7; ATE 0.026 m); its copy from
+   frame 10 -0.153 px (2.1, not used; ATE 0.151 m) and the 26 frames from frame 25
+   -0.248 px with a deviation of 0.129 px (not used; ATE 0.096 m): on 26-51 frames the
+   decision is close. KITTI raw 0005 (slow, turning, movers) and the EuRoC extracts say
+   too little (deviations 0.13-0.56 px) and keep their calibration. Synthetic sequences
+   are rendered with an exact rig, and their family file switches the estimate off.
 
 The paper does not calibrate; it assumes the rig's calibration. We do because the offset
 was the largest error on our real KITTI extracts. It costs 2-4 s per run (36 frames'

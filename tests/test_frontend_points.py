@@ -19,7 +19,6 @@ from pld_slam.frontend.points import (
     disparity_limits,
     match_stereo_points,
     sad_along_row,
-    sad_minimum,
 )
 from pld_slam.geometry.camera import StereoCamera
 
@@ -245,18 +244,3 @@ def test_sad_along_row_is_smallest_at_the_true_shift_whatever_the_brightness_off
     assert sad.shape == (2, 11)
     assert np.argmin(sad, axis=1).tolist() == [5 + shift, 5 + shift]
     assert np.allclose(sad[:, 5 + shift], 0.0)  # the mean-free windows are equal
-
-
-@pytest.mark.parametrize("fraction", [0.25, 0.75])
-def test_sad_minimum_finds_a_fractional_shift_without_pulling_it_to_the_whole_pixel(fraction):
-    texture = smooth_texture(CAMERA.height * SUPERSAMPLING, (CAMERA.width + 60) * SUPERSAMPLING, seed=5)
-    left, right = shifted_pair(texture, 20.0 + fraction)
-    v, u = np.mgrid[40:440:20, 60:600:20]
-    left_px = np.column_stack([u.ravel(), v.ravel()])
-    right_u = left_px[:, 0] - 20  # the whole-pixel match
-    sad, inside = sad_along_row(left, right, left_px, right_u, half_window=5, radius=5)
-    shift, valid = sad_minimum(sad)
-    error = (left_px[inside, 0] - (right_u[inside] + shift))[valid] - (20.0 + fraction)
-    assert valid.mean() > 0.95
-    assert abs(np.mean(error)) < 0.04  # a parabola through the same SAD values errs by 0.094 px
-    assert np.median(np.abs(error)) < 0.1

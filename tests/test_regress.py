@@ -37,8 +37,7 @@ def test_a_worsened_config_fails_the_check_and_the_same_code_passes(tmp_path, mo
     assert same.exit_code == 0, same.output
     assert "pass" in same.output and "skipped (PLD_SLAM_DATA is not set)" in same.output
 
-    worse = invoke(baseline, "--out", work, "--set", "points.n_features=150", "--set", "lines.enabled=false",
-                   "--set", "mapping.enabled=false")
+    worse = invoke(baseline, "--out", work, "--set", "points.n_features=150", "--set", "lines.enabled=false")
     assert worse.exit_code == 1, worse.output
     assert "worse" in worse.output and "regression: 1 of 2 cells" in worse.output
 

@@ -46,9 +46,8 @@ def intact_ate(street) -> float:
 def test_every_frame_is_tracked_with_frames_dropped_or_a_moving_start(street, intact_ate, start, step):
     ate, statuses = run_ate(street.subsequence(start, step))
     assert TrackingStatus.LOST not in statuses
-    # measured: ATE 0.044, 0.057, 0.073 m against 0.045 m for the intact run (9 to 30 frames: noisy);
-    # a frame posed from a wrong prior is off by about a frame's motion (0.8 m)
-    assert ate < 2.0 * intact_ate
+    # measured: ATE 0.042, 0.051, 0.052 m against 0.061 m for the intact run
+    assert ate < 1.5 * intact_ate
 
 
 def test_the_sub_sequence_keeps_the_chosen_frames_and_rebases_the_ground_truth(street):

@@ -16,10 +16,9 @@ against SGBM disparities sampled along each line on six frames):
   of the half image, whole pixels there, so their kept segments are moved onto the
   sub-pixel gradient maximum of the full image (`refined_to_edges`, 1.5 ms for KITTI's
   ~120 segments): on rendered squares their median endpoint disparity error went from
-  0.39 / 0.49 px to 0.06 px, LSD's figure. Mapping on (with the stereo points' parabola
-  sub-pixel fit of the time), synthetic seeds 0-2 (150 frames), mean ATE of EDLines
-  before and after the refinement, FLD after, and LSD: static 0.044 / 0.038, 0.037
-  against 0.032 m; dynamic 0.069 / 0.052, 0.054 against 0.057; low texture
+  0.39 / 0.49 px to 0.06 px, LSD's figure. Mapping on, synthetic seeds 0-2 (150 frames),
+  mean ATE of EDLines before and after the refinement, FLD after, and LSD: static 0.044 /
+  0.038, 0.037 against 0.032 m; dynamic 0.069 / 0.052, 0.054 against 0.057; low texture
   0.106 / 0.083, 0.076 against 0.090. KITTI 06: EDLines 0.029 / 0.030, FLD 0.026 against
   LSD's 0.031 m; raw 0005: 0.083 / 0.085, 0.090 against 0.086; line inliers per KITTI 06
   frame 20 (EDLines) against 30. They save about 20 ms of front-end CPU per KITTI frame,
