@@ -185,10 +185,10 @@ def edlines_segments(image: np.ndarray, config: LinesConfig) -> np.ndarray:
 
 
 DETECTORS = {"lsd": lsd_segments, "fld": fld_segments, "edlines": edlines_segments}
+"""Segment detector of each ``lines.detector``: (image (H, W) uint8, config) -> segments (M, 2, 2) [px]."""
 PIXEL_ACCURATE_DETECTORS = ("fld", "edlines")
 """Detectors whose segments sit on whole pixels of the scaled image: their kept segments are
 moved onto the edge (`refined_to_edges`); LSD's are sub-pixel already."""
-"""Segment detector of each ``lines.detector``: (image (H, W) uint8, config) -> segments (M, 2, 2) [px]."""
 
 
 EDGE_SEARCH_PX = 3
