@@ -222,9 +222,10 @@ def refined_to_edges(image: np.ndarray, segments: np.ndarray) -> np.ndarray:
     if len(segments) == 0:
         return segments
     start, delta = segments[:, 0], segments[:, 1] - segments[:, 0]
-    length = np.maximum(np.linalg.norm(delta, axis=1), 1e-9)
-    normal = delta[:, ::-1] * [1.0, -1.0] / length[:, None]
-    samples = np.clip((length / EDGE_SAMPLE_SPACING_PX).astype(np.int64), MIN_EDGE_SAMPLES, MAX_EDGE_SAMPLES)
+    normal = segment_normals(segments)
+    samples = np.clip(
+        (segment_lengths(segments) / EDGE_SAMPLE_SPACING_PX).astype(np.int64), MIN_EDGE_SAMPLES, MAX_EDGE_SAMPLES
+    )
     along = (np.arange(samples.max())[None, :] + 0.5) / samples[:, None]  # (M, K) fraction of the length
     in_segment = along < 1.0
     across = np.arange(-EDGE_SEARCH_PX - 1, EDGE_SEARCH_PX + 2, dtype=np.float64)  # (T,) [px]
@@ -292,7 +293,7 @@ def oriented_by_gradient(image: np.ndarray, segments: np.ndarray, samples: int =
     either side.
     """
     start, delta = segments[:, 0], segments[:, 1] - segments[:, 0]
-    normal = delta[:, ::-1] * [1.0, -1.0] / np.maximum(np.linalg.norm(delta, axis=1), 1e-12)[:, None]
+    normal = segment_normals(segments)
     along = start[:, None] + ((np.arange(samples) + 0.5) / samples)[None, :, None] * delta[:, None]
     sides = np.concatenate([along + normal[:, None], along - normal[:, None]], axis=1).astype(np.float32)
     if len(sides) == 0:
@@ -305,6 +306,13 @@ def oriented_by_gradient(image: np.ndarray, segments: np.ndarray, samples: int =
 def segment_lengths(segments: np.ndarray) -> np.ndarray:
     """Length (M,) [px] of segments (M, 2, 2)."""
     return np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)
+
+
+def segment_normals(segments: np.ndarray) -> np.ndarray:
+    """Unit normals (M, 2) of segments (M, 2, 2): the direction ``(du, dv)`` turned to ``(dv, -du)``,
+    the side LSD puts the brighter image on (zero for a segment of no length)."""
+    delta = segments[:, 1] - segments[:, 0]
+    return delta[:, ::-1] * [1.0, -1.0] / np.maximum(segment_lengths(segments), 1e-12)[:, None]
 
 
 def near_horizontal(segments: np.ndarray, min_angle: float) -> np.ndarray:
