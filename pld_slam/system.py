@@ -337,6 +337,7 @@ def _new_keyframe(
         T_c_w=inverse(tracked.T_w_c),
         features=features,
         ggs=features.ggs,
+        place_ggs=features.place_ggs,
         point_ids=np.full(len(features.keypoints), -1) if found is None else found.point_ids.copy(),
         line_ids=np.full(len(features.lines), -1) if found is None else found.line_ids.copy(),
         point_dynamic=tracked.point_dynamic,

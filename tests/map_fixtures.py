@@ -166,6 +166,7 @@ def make_keyframe(
         T_c_w=np.eye(4) if T_c_w is None else np.array(T_c_w, dtype=np.float64),
         features=features,
         ggs=np.zeros((2, 1, 1), dtype=np.uint8),
+        place_ggs=np.zeros((2, 1, 1), dtype=np.uint8),
         point_ids=ids(point_ids, n_points),
         line_ids=ids(line_ids, n_lines),
         point_dynamic=flags(point_dynamic, n_points),

@@ -5,6 +5,8 @@ with noise and a light blur, so that every cell has a spread histogram as real f
 The real-frame tests read the extracts through ``data_dir`` and skip where they are missing.
 """
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -15,18 +17,25 @@ from pld_slam.frontend.ggs import (
     HISTOGRAM_QUANTA,
     ORIGINAL,
     GgsDatabase,
+    ggs_and_place_descriptors,
     ggs_descriptor,
     ggs_distance,
     ggs_distances,
     ggs_histograms,
+    rank_histograms,
 )
 
 CONFIG = GgsConfig()
+RANKS = (False, True)
+"""The paper's GGS (histograms of grey levels) and place recognition's (of their ranks)."""
 SHAPE = (370, 1226)
 """A KITTI odometry frame's (height, width)."""
 
-QUANTISATION_BOUND = 0.05
-"""How far a stored (quantised) distance may be from the exact one on natural-looking images."""
+QUANTISATION_BOUND = {False: 0.05, True: 0.1}
+"""How far a stored (quantised) distance may be from the exact one on natural-looking images, by
+``ranks``: flat histograms of ranks round more (`pld_slam.frontend.ggs`, "Storage"), most
+between unrelated images (here up to 0.081, the streets against blurred noise at 1.0-1.2;
+on real frames within 0.056)."""
 
 
 def street(seed: int, shape: tuple[int, int] = SHAPE) -> np.ndarray:
@@ -58,9 +67,9 @@ def zoomed(image: np.ndarray, factor: float) -> np.ndarray:
     return cv2.warpAffine(image, warp, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
 
 
-def exact_distance(a: np.ndarray, b: np.ndarray) -> float:
+def exact_distance(a: np.ndarray, b: np.ndarray, ranks: bool = False) -> float:
     """``sim_v`` of two grey images from their float histograms: per cell, the least L1 over pairings; the mean."""
-    histograms_a, histograms_b = ggs_histograms(a, CONFIG), ggs_histograms(b, CONFIG)
+    histograms_a, histograms_b = ggs_histograms(a, CONFIG, ranks), ggs_histograms(b, CONFIG, ranks)
     per_pairing = np.abs(histograms_a[:, None] - histograms_b[None]).sum(axis=-1)  # (2, 2, C)
     return float(per_pairing.min(axis=(0, 1)).mean())
 
@@ -104,8 +113,10 @@ def test_identical_image_is_at_distance_zero_and_ranks_first(descriptors):
     assert np.all(np.delete(distances, names.index("original")) > 0.0)
 
 
+@pytest.mark.parametrize("ranks", RANKS)
 @pytest.mark.parametrize("copy", ["shifted", "zoomed"])
-def test_shifted_and_zoomed_copies_are_close(descriptors, copy):
+def test_shifted_and_zoomed_copies_are_close(scenes, copy, ranks):
+    descriptors = {name: ggs_descriptor(image, CONFIG, ranks) for name, image in scenes.items()}
     distance = ggs_distance(descriptors["original"], descriptors[copy])
     unrelated = min(ggs_distance(descriptors["original"], descriptors[name]) for name in UNRELATED)
     assert distance < 0.2
@@ -125,12 +136,62 @@ def test_unrelated_synthetic_images_are_far(descriptors):
             assert ggs_distance(descriptors[first], descriptors[second]) > 0.8, (first, second)
 
 
-def test_quantised_distance_is_close_to_the_exact_one(scenes):
+@pytest.mark.parametrize("ranks", RANKS)
+def test_quantised_distance_is_close_to_the_exact_one(scenes, ranks):
     images = list(scenes.values())
     for i, a in enumerate(images):
         for b in images[i:]:
-            stored = ggs_distance(ggs_descriptor(a, CONFIG), ggs_descriptor(b, CONFIG))
-            assert abs(stored - exact_distance(a, b)) < QUANTISATION_BOUND
+            stored = ggs_distance(ggs_descriptor(a, CONFIG, ranks), ggs_descriptor(b, CONFIG, ranks))
+            assert abs(stored - exact_distance(a, b, ranks)) < QUANTISATION_BOUND[ranks]
+
+
+def test_a_change_of_exposure_and_gamma_changes_only_the_grey_level_histograms(scenes):
+    """A monotonic grey change (gain, offset, gamma) keeps the ranks: the equalised GGS stays close,
+    the paper's moves farther than an unrelated street."""
+    original = scenes["original"]
+    levels = np.arange(256) / 255.0
+    relit = cv2.LUT(original, np.clip(255.0 * 0.7 * levels**0.6 + 30.0, 0, 255).astype(np.uint8))
+    for ranks in RANKS:
+        before = ggs_descriptor(original, CONFIG, ranks)
+        unrelated = ggs_distance(before, ggs_descriptor(scenes["other street"], CONFIG, ranks))
+        distance = ggs_distance(before, ggs_descriptor(relit, CONFIG, ranks))
+        if ranks:
+            assert distance < 0.1
+            assert distance < unrelated / 10
+        else:
+            assert distance > unrelated
+
+
+def test_place_distance_is_the_mean_of_the_grey_and_the_rank_distances(scenes):
+    a, b = scenes["original"], scenes["shifted"]
+    grey_a, place_a = ggs_and_place_descriptors(a, CONFIG)
+    grey_b, place_b = ggs_and_place_descriptors(b, CONFIG)
+    np.testing.assert_array_equal(grey_a, ggs_descriptor(a, CONFIG))
+    ranks_distance = ggs_distance(ggs_descriptor(a, CONFIG, ranks=True), ggs_descriptor(b, CONFIG, ranks=True))
+    expected = (ggs_distance(grey_a, grey_b) + ranks_distance) / 2
+    assert ggs_distance(place_a, place_b) == pytest.approx(expected, abs=1e-12)
+    grey_only = dataclasses.replace(CONFIG, place_ranks=False)
+    grey, place = ggs_and_place_descriptors(a, grey_only)
+    assert place is grey
+
+
+@pytest.mark.parametrize("bins", [7, 256])
+def test_the_whole_image_is_spread_evenly_over_its_ranks(scenes, bins):
+    image = scenes["original"] // 2  # odd grey levels absent
+    whole = np.bincount(image.ravel(), minlength=256)[None] / image.size
+    np.testing.assert_allclose(rank_histograms(whole, image, bins), np.full((1, bins), 1.0 / bins), atol=1e-12)
+
+
+def test_a_cell_of_one_grey_level_fills_that_levels_ranks():
+    """Half the image at grey 50, half at 200: grey 50 holds ranks [0, 0.5), so a cell all at 50
+    fills the first two of four bins evenly; a cell half and half fills all four."""
+    image = np.full((10, 20), 200, dtype=np.uint8)
+    image[:, :10] = 50
+    dark, mixed = np.zeros(256), np.zeros(256)
+    dark[50] = 1.0
+    mixed[[50, 200]] = 0.5
+    np.testing.assert_allclose(rank_histograms(np.stack([dark, mixed]), image, 4),
+                               [[0.5, 0.5, 0.0, 0.0], [0.25, 0.25, 0.25, 0.25]], atol=1e-12)
 
 
 def test_distance_is_symmetric_and_between_0_and_2(descriptors):
@@ -176,20 +237,21 @@ def test_database_keeps_insertion_order_through_growth_and_removal(descriptors):
         database.remove(130)
 
 
-def test_real_frames(data_dir):
-    """KITTI 06: the next frame is close, 5 s later is farther; EuRoC frames are far from KITTI."""
+@pytest.mark.parametrize("ranks", RANKS)
+def test_real_frames(data_dir, ranks):
+    """KITTI 06: the next frame is close, 5 s later is farther; EuRoC frames are far from KITTI (less
+    so by ranks, which no longer see that EuRoC's room is darker: measured 0.78 against 0.9 and more)."""
     kitti = data_dir / "kitti_odometry" / "sequences" / "06" / "image_0"
     euroc = data_dir / "euroc" / "V1_01_easy_loop_pairs" / "mav0" / "cam0" / "data"
     paths = [require(kitti / f"{frame:06d}.png") for frame in (0, 1, 50)] + sorted(require(euroc).glob("*.png"))
     images = [cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) for path in paths]
-    database = np.stack([ggs_descriptor(image, CONFIG) for image in images])
+    database = np.stack([ggs_descriptor(image, CONFIG, ranks) for image in images])
     distances = ggs_distances(database[0], database)
     next_frame, later, euroc_frames = distances[1], distances[2], distances[3:]
     assert len(euroc_frames) > 0
     assert next_frame < 0.3
     assert next_frame < later < euroc_frames.min()
-    assert euroc_frames.min() > 0.9
+    assert euroc_frames.min() > (0.7 if ranks else 0.9)
     for image in images[1:]:
-        assert abs(ggs_distance(database[0], ggs_descriptor(image, CONFIG)) - exact_distance(images[0], image)) < (
-            QUANTISATION_BOUND
-        )
+        stored = ggs_distance(database[0], ggs_descriptor(image, CONFIG, ranks))
+        assert abs(stored - exact_distance(images[0], image, ranks)) < QUANTISATION_BOUND[ranks]

@@ -175,6 +175,7 @@ def build_map(
                 T_c_w=T_c_w[k] if k in exact_keyframes else perturbed(rng, T_c_w[k]),
                 features=features,
                 ggs=np.zeros((2, 12, 256), dtype=np.uint8),
+                place_ggs=np.zeros((2, 12, 256), dtype=np.uint8),
                 point_ids=point_ids[seen_points].copy(),
                 line_ids=line_ids[seen_lines].copy(),
                 point_dynamic=np.zeros(len(seen_points), dtype=bool),

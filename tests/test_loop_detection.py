@@ -6,7 +6,7 @@ import pytest
 from map_fixtures import camera_features, make_keyframe, random_descriptors, scene_points, simple_features
 
 from pld_slam.config import GgsConfig, LoopConfig
-from pld_slam.frontend.ggs import ggs_descriptor
+from pld_slam.frontend.ggs import ggs_and_place_descriptors
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
 from pld_slam.loop.bow_detector import BowDatabase, BowDetector
 from pld_slam.loop.ggs_detector import GgsDetector, ggs_loop_candidates
@@ -33,7 +33,8 @@ def corridor_map(places: list[int]) -> Map:
     world_map.points.add(scene_points(20 * (n + 1), 1), random_descriptors(20 * (n + 1), 2), 0)
     for k, place in enumerate(places):
         keyframe = make_keyframe(k, simple_features(40, seed=k), point_ids=np.arange(20 * k, 20 * k + 40))
-        keyframe.ggs = ggs_descriptor(np.ascontiguousarray(view[:, STEP * place: STEP * place + WIDTH]), GgsConfig())
+        window = np.ascontiguousarray(view[:, STEP * place: STEP * place + WIDTH])
+        _, keyframe.place_ggs = ggs_and_place_descriptors(window, GgsConfig())
         world_map.add_keyframe(keyframe)
     return world_map
 

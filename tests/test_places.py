@@ -16,7 +16,7 @@ from matplotlib.image import imread
 
 from pld_slam.config import Config, GgsConfig
 from pld_slam.errors import DatasetError, PldSlamError
-from pld_slam.frontend.ggs import ggs_descriptor, ggs_distance
+from pld_slam.frontend.ggs import ggs_and_place_descriptors, ggs_distance
 from pld_slam.frontend.points import detect_image_points
 from pld_slam.loop.places import (
     best_matches,
@@ -139,7 +139,7 @@ def test_eligible_pairs_are_the_earlier_images_outside_the_recent_window():
 def test_ggs_similarity_is_the_negated_ggs_distance_of_the_earlier_images():
     images = place_images()[:4]
     similarity = place_similarity(iter(images), "ggs")
-    descriptors = [ggs_descriptor(image, GgsConfig()) for image in images]
+    descriptors = [ggs_and_place_descriptors(image, GgsConfig())[1] for image in images]
     assert similarity.shape == (4, 4)
     for i in range(4):
         for j in range(4):

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pld_slam.config import GgsConfig, LinesConfig, PointsConfig
-from pld_slam.frontend.ggs import ggs_descriptor
+from pld_slam.frontend.ggs import ggs_and_place_descriptors
 from pld_slam.frontend.lines import StereoLines, detect_image_lines, match_stereo_lines
 from pld_slam.frontend.points import (
     LeftKeypoints,
@@ -38,12 +38,14 @@ class StereoFeatures:
 
     ``keypoints`` holds every left ORB keypoint, ``points`` first (`LeftKeypoints`); the map
     observes points through it. ``ggs`` is the GGS descriptor of the left image,
-    (2, cells, bins) uint8 (`pld_slam.frontend.ggs`), or None when it was not asked for.
+    (2, cells, bins) uint8 (`pld_slam.frontend.ggs`), or None when it was not asked for;
+    ``place_ggs`` the one place recognition compares (`pld_slam.frontend.ggs.ggs_and_place_descriptors`).
     """
 
     points: StereoPoints
     lines: StereoLines
     ggs: np.ndarray | None = None
+    place_ggs: np.ndarray | None = None
     keypoints: LeftKeypoints = field(default_factory=LeftKeypoints.empty)
 
 
@@ -71,14 +73,15 @@ def extract_stereo_features(
             if lines_config.enabled
             else []
         )
-        ggs_job = None if ggs_config is None else pool.submit(ggs_descriptor, left, ggs_config)
+        ggs_job = None if ggs_config is None else pool.submit(ggs_and_place_descriptors, left, ggs_config)
         left_points, right_points = (job.result() for job in point_jobs)
         index, disparity, u_right = stereo_match_indices(left_points, right_points, camera, points_config)
         points = stereo_points(left_points, index, disparity, u_right, camera)
         keypoints = left_keypoints(left_points, index, u_right)
-        ggs = None if ggs_job is None else ggs_job.result()
+        ggs, place_ggs = (None, None) if ggs_job is None else ggs_job.result()
         if not line_jobs:
-            return StereoFeatures(points=points, lines=StereoLines.empty(), ggs=ggs, keypoints=keypoints)
+            return StereoFeatures(points=points, lines=StereoLines.empty(), ggs=ggs, place_ggs=place_ggs,
+                                  keypoints=keypoints)
         left_lines, right_lines = (job.result() for job in line_jobs)
     lines = match_stereo_lines(left_lines, right_lines, camera, lines_config)
-    return StereoFeatures(points=points, lines=lines, ggs=ggs, keypoints=keypoints)
+    return StereoFeatures(points=points, lines=lines, ggs=ggs, place_ggs=place_ggs, keypoints=keypoints)

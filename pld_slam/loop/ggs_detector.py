@@ -54,9 +54,9 @@ def similarity_bar(world_map: Map, keyframe: KeyFrame, distances: np.ndarray) ->
 def ggs_loop_candidates(world_map: Map, keyframe: KeyFrame, config: LoopConfig) -> GgsCandidates:
     """The keyframe's loop candidates (module docstring)."""
     ids = world_map.ggs.ids
-    if len(ids) == 0 or keyframe.ggs is None:
+    if len(ids) == 0 or keyframe.place_ggs is None:
         return GgsCandidates(np.zeros(0, dtype=np.int64), np.zeros(0), float("nan"))
-    distances = world_map.ggs.distances(keyframe.ggs)
+    distances = world_map.ggs.distances(keyframe.place_ggs)
     bar = similarity_bar(world_map, keyframe, distances)
     joined = [*world_map.covisibility.shared(keyframe.id), keyframe.id]
     eligible = (ids < keyframe.id - config.exclude_recent_keyframes) & ~np.isin(ids, joined) & (distances <= bar)
@@ -85,9 +85,9 @@ def previous_keyframe(world_map: Map, keyframe: KeyFrame) -> KeyFrame | None:
 def neighbourhood(world_map: Map, keyframe: KeyFrame, candidate: KeyFrame) -> Neighbourhood:
     """Stage 2's two distances (module docstring)."""
     previous = previous_keyframe(world_map, keyframe)
-    previous_distance = np.inf if previous is None else ggs_distance(previous.ggs, candidate.ggs)
+    previous_distance = np.inf if previous is None else ggs_distance(previous.place_ggs, candidate.place_ggs)
     around = [world_map.keyframes[k] for k in world_map.covisibility.neighbours(candidate.id) if k != keyframe.id]
-    neighbour_distance = min((ggs_distance(keyframe.ggs, k.ggs) for k in around), default=np.inf)
+    neighbour_distance = min((ggs_distance(keyframe.place_ggs, k.place_ggs) for k in around), default=np.inf)
     return Neighbourhood(float(previous_distance), float(neighbour_distance))
 
 

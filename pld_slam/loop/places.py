@@ -69,7 +69,7 @@ import numpy as np
 from pld_slam.config import Config, GgsConfig, PointsConfig
 from pld_slam.datasets.base import read_grey
 from pld_slam.errors import DatasetError, PldSlamError
-from pld_slam.frontend.ggs import GgsDatabase, ggs_descriptor, ggs_distances
+from pld_slam.frontend.ggs import GgsDatabase, ggs_and_place_descriptors, ggs_distances
 from pld_slam.frontend.points import detect_image_points
 from pld_slam.loop.bow_detector import BowDatabase
 from pld_slam.loop.vocabulary import Vocabulary
@@ -142,6 +142,8 @@ def ggs_place_scores(images: Iterable[np.ndarray], config: GgsConfig = GgsConfig
                      exclude_recent: int = 0) -> np.ndarray:
     """GGS similarity matrix (N, N) float64 of grey images (H, W) uint8: ``-sim_v``, NaN where not eligible.
 
+    The GGS is place recognition's (`pld_slam.frontend.ggs.ggs_and_place_descriptors`).
+
     Streams: each image's descriptor is computed, queried against the descriptors of the
     images it may match (``j < i - exclude_recent``, all seen already) and kept; the
     images themselves are not. Images may differ in size (GGS histograms are normalised
@@ -150,7 +152,7 @@ def ggs_place_scores(images: Iterable[np.ndarray], config: GgsConfig = GgsConfig
     database = GgsDatabase()
     rows: list[np.ndarray] = []
     for index, image in enumerate(images):
-        descriptor = ggs_descriptor(image, config)
+        _, descriptor = ggs_and_place_descriptors(image, config)
         n_database = max(index - exclude_recent, 0)
         rows.append(-ggs_distances(descriptor, database.descriptors[:n_database]) if n_database else np.zeros(0))
         database.add(index, descriptor)

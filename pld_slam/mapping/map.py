@@ -39,7 +39,8 @@ class Map:
         self.lines = LineLandmarks()
         self.covisibility = CovisibilityGraph(covisibility_min_shared)
         self.ggs = GgsDatabase()
-        """The GGS descriptors of the live keyframes that have one (relocalisation and loop detection query it)."""
+        """The place GGS (`KeyFrame.place_ggs`) of the live keyframes that have one (relocalisation and loop
+        detection query it)."""
         self._next_keyframe_id = 0
         self._culled: dict[int, tuple[int, np.ndarray]] = {}
         """Culled keyframe id -> (its parent's id, ``T_c_p`` from the parent camera to it)."""
@@ -64,8 +65,8 @@ class Map:
         self._next_keyframe_id += 1
         self.keyframes[keyframe.id] = keyframe
         self.covisibility.add_keyframe(keyframe.id)
-        if keyframe.ggs is not None:
-            self.ggs.add(keyframe.id, keyframe.ggs)
+        if keyframe.place_ggs is not None:
+            self.ggs.add(keyframe.id, keyframe.place_ggs)
         for kind in self.kinds:
             ids = getattr(keyframe, kind.IDS_FIELD)
             features = np.flatnonzero(ids >= 0)
@@ -198,7 +199,7 @@ class Map:
             ids = getattr(keyframe, kind.IDS_FIELD)
             self.erase_observations(kind, keyframe, np.flatnonzero(ids >= 0))
         self.covisibility.remove_keyframe(keyframe.id)
-        if keyframe.ggs is not None:
+        if keyframe.place_ggs is not None:
             self.ggs.remove(keyframe.id)
         del self.keyframes[keyframe.id]
 

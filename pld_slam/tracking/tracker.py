@@ -361,9 +361,9 @@ class Tracker:
         keyframe (relocalisation). A frame without a GGS (not computed) skips the second.
         """
         candidates = [self._local_map]
-        if features.ggs is not None:
+        if features.place_ggs is not None:
             limit = self._config.tracking.relocalisation_keyframes
-            for keyframe in keyframes_by_similarity(self._map, features.ggs, limit):
+            for keyframe in keyframes_by_similarity(self._map, features.place_ggs, limit):
                 if keyframe != self._reference_keyframe.id:
                     candidates.append(gather_local_map(self._map, keyframe, self._config.mapping.tracking_keyframes))
         for local_map in candidates:
