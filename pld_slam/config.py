@@ -237,9 +237,9 @@ class GgsConfig:
     grid_cols: int = _param(4, "grid columns per image (paper: 3 x 4)", 1)
     bins: int = _param(256, "grey-level histogram bins per cell (paper: 256)", 2, 256)
     place_ranks: bool = _param(
-        True, "place recognition (loop detection, relocalisation) compares histograms of the grey levels' "
-        "ranks, which a change of exposure does not move; the keyframe rule keeps grey levels "
-        "(not in the paper; pld_slam.frontend.ggs)"
+        True, "place recognition (loop detection, relocalisation) compares the grey histograms and as many "
+        "of the grey levels' ranks, which a change of exposure does not move; the keyframe rule compares "
+        "grey histograms only (not in the paper; pld_slam.frontend.ggs)"
     )
 
 

@@ -20,7 +20,7 @@ class KeyFrame:
     T_c_w : (4, 4) world-to-left-camera pose.
     features : its stereo points and lines (left image, left camera frame).
     ggs : (2, C, B) uint8 GGS descriptor of its left image (`pld_slam.frontend.ggs`): the keyframe rule's.
-    place_ggs : (2, C, B) uint8, the one place recognition compares (`pld_slam.frontend.StereoFeatures`).
+    place_ggs : (2, C', B) uint8, the one place recognition compares (`pld_slam.frontend.StereoFeatures`).
     point_ids : (P,) int64 map point of each left keypoint (``features.keypoints``, the
         stereo points first), ``-1`` for none.
     line_ids : (L,) int64 map line of each stereo line, ``-1`` for none.
