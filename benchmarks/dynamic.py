@@ -11,9 +11,10 @@ detectors and the static-world check) and in all.
 Sections (``--section``, all by default):
 
 - ``scenes``: synthetic ``convoy`` and ``crossing`` (movers a robust solve follows: the
-  figures to reach), ``dynamic`` (the easy case) on ``--seeds``, and ``static`` (first
-  seed); then per scenario over the seeds: mean ATE of each variant, its ratio to neither
-  and to masks (of the means), and precision / recall pooled over every frame.
+  figures to reach), ``dynamic`` (the easy case) and ``static`` (what the detectors cost
+  where nothing moves), each on ``--seeds``; then per scenario over the seeds: mean ATE
+  of each variant, its ratio to neither and to masks (of the means), and precision /
+  recall pooled over every frame.
 - ``real``: KITTI odometry 06 (static) and KITTI raw 0005 (dynamic), neither and both,
   when found through ``$PLD_SLAM_DATA``; the detection ms there is the cost per KITTI frame.
 - ``parked``: synthetic ``parked_then_moving`` on ``--seeds`` with both detectors: the
@@ -141,8 +142,8 @@ def print_table(table: pd.DataFrame) -> None:
 def scenes(out: Path, seeds: list[int], variants: list[str], extra: tuple[str, ...]) -> None:
     """The ``scenes`` section (module docstring)."""
     rows = []
-    for scenario, scenario_seeds in [*((name, seeds) for name in (*HARD_SCENES, "dynamic")), ("static", seeds[:1])]:
-        for seed in scenario_seeds:
+    for scenario in (*HARD_SCENES, "dynamic", "static"):
+        for seed in seeds:
             folder = ensure_sequence(out / f"{scenario}_{seed}", scenario, DEFAULT_FRAMES[scenario], seed)
             sequence_rows = rows_for(open_sequence(folder), variants, extra)
             rows += [dict(row, scenario=scenario, sequence=f"synth_{scenario}_{seed}") for row in sequence_rows]
@@ -152,7 +153,7 @@ def scenes(out: Path, seeds: list[int], variants: list[str], extra: tuple[str, .
     print("\nevery run:")
     print_table(table.drop(columns=[*count_columns(table), "scenario"]).set_index(["sequence", "variant"]))
     for scenario, group in table.groupby("scenario", sort=False):
-        print(f"\n{scenario}, seeds {' '.join(map(str, seeds if scenario != 'static' else seeds[:1]))}: "
+        print(f"\n{scenario}, seeds {' '.join(map(str, seeds))}: "
               "means over seeds, labels pooled over all frames")
         print_table(pooled(group))
 

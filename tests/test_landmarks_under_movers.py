@@ -2,9 +2,15 @@
 
 import numpy as np
 
+from pld_slam.config import load_config
 from pld_slam.frontend import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.tracking.local_map import MOVER_DEPTH_TOLERANCE, LandmarkSnapshot, landmarks_under_movers
+from pld_slam.tracking.local_map import (
+    _NEAREST_SCALE,
+    MOVER_DEPTH_TOLERANCE,
+    LandmarkSnapshot,
+    landmarks_under_movers,
+)
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 RADIUS_PX = 64.0
@@ -35,18 +41,16 @@ def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mo
         [6.0, 0.0, 10.0],  # 2: missed, a mover 10 m behind it: not under
         [-6.0, -5.0, 20.0],  # 3: missed, a static point at its depth: not under
         [0.0, -5.0, 20.0],  # 4: found again, a mover at its depth: not missed
-        [6.0, -5.0, 20.0],  # 5: not predicted in view
+        [16.5, -5.0, 20.0],  # 5: outside the image (u = 650), a mover at its depth 20 px away: not judged
         [0.0, 5.0, 20.0],  # 6: missed, a mover at its depth 100 px away
     ])
     mover_points = np.array([[0.5, 0.0, 21.0], [-2.875, 0.0, 10.0], [11.75, 0.0, 20.0], [0.3, -5.0, 20.0],
-                             [5.0, 5.0, 20.0]])
+                             [15.5, -5.0, 20.0], [5.0, 5.0, 20.0]])
     static_points = np.array([[-5.9, -5.0, 20.0]])
     points = stereo_points(np.concatenate([mover_points, static_points]))
     dynamic = np.array([True] * len(mover_points) + [False])
-    visible = np.array([True, True, True, True, True, False, True])
     ids = snapshot(landmarks).ids
-    under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmarks), visible, ids[[4]], points, dynamic,
-                                   RADIUS_PX)
+    under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points, dynamic, RADIUS_PX)
     assert under.tolist() == [ids[0]]
 
 
@@ -56,6 +60,24 @@ def test_the_depth_band_is_relative_to_the_landmark_depth():
     outside = 30.0 * (1.0 + 1.1 * MOVER_DEPTH_TOLERANCE)
     for depth, expected in ((inside, [10]), (outside, [])):
         points = stereo_points(np.array([[0.3, 0.0, depth]]))
-        under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmark), np.array([True]), np.zeros(0, np.int64),
-                                       points, np.array([True]), RADIUS_PX)
+        under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmark), np.zeros(0, np.int64), points,
+                                       np.array([True]), RADIUS_PX)
         assert under.tolist() == expected, depth
+
+
+def test_a_landmark_beyond_its_search_range_is_judged_too():
+    """The search skips a point landmark outside 0.8 x its nearest to 1.2 x its farthest distance;
+    a mover at its depth still marks it: the range bounds where its descriptor matches, not where
+    it can be seen (`landmarks_under_movers`)."""
+    landmark = np.array([[0.0, 0.0, 5.0]])
+    seen_from_far = LandmarkSnapshot(
+        ids=np.array([10]), geometry=landmark, descriptors=np.zeros((1, 32), np.uint8),
+        normals=np.array([[0.0, 0.0, 1.0]]), max_distance=np.array([40.0]),
+    )
+    points_config = load_config().points
+    nearest_searched = _NEAREST_SCALE * 40.0 / points_config.scale_factor ** (points_config.n_levels - 1)
+    assert nearest_searched > 5.0  # the search of the local map skips it
+    points = stereo_points(np.array([[0.2, 0.0, 5.2]]))
+    under = landmarks_under_movers(CAMERA, np.eye(4), seen_from_far, np.zeros(0, np.int64), points,
+                                   np.array([True]), RADIUS_PX)
+    assert under.tolist() == [10]

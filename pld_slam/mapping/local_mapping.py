@@ -26,7 +26,9 @@ a method below:
    52 to 4; the streak alone changed neither (those landmarks are missed, not matched).
    Mean ATE, before and after: synthetic static, dynamic and low texture (150 frames,
    seeds 0-2) within 1 %; convoy 0.073 and 0.075 m (true masks: 0.063 m), crossing 0.013 m
-   both; KITTI 06 0.0305 m both, raw 0005 0.0863 and 0.0860 m.
+   both; KITTI 06 0.0305 m both, raw 0005 0.0863 and 0.0860 m. Judging every landmark in
+   the image, not only those the search of the local map tried, then left 7 and none
+   (`landmarks_under_movers`, "In the image, not only searched").
 3. `_create_landmarks`: the paper creates landmarks "for the new common features
    observed in the current KF and previous KF". A stereo keyframe has the depth of every
    stereo point and line already, so, as ORB-SLAM2 does for stereo, we create a landmark
