@@ -97,10 +97,11 @@ def test_landmarks_of_a_mover_are_counted_by_when_they_were_made():
 
 def test_a_parked_car_that_pulls_out_leaves_the_map(tmp_path):
     """The first car of ``parked_then_moving`` (seed 1) rests from frame 0 to 18, entering the map,
-    then pulls out. Five keyframes later at most a quarter of the point landmarks made on it at
-    rest are alive: 3 of 16 with the landmarks missed under a mover counted as seen moving
-    (`pld_slam.tracking.local_map.landmarks_under_movers`), 8 when only those matched to
-    dynamic features counted (seed 2: 7 and 12 of 25)."""
+    then pulls out. Five keyframes later at most an eighth of the point landmarks made on it at
+    rest are alive: none of 16 with the landmarks missed under a mover anywhere in the image
+    counted as seen moving (`pld_slam.tracking.local_map.landmarks_under_movers`), 3 when only
+    those the search of the local map tried counted, 8 when only those matched to dynamic
+    features counted (seed 2: 6, 7 and 12 of 25)."""
     folder = tmp_path / "parked"
     write_sequence(folder, "parked_then_moving", n_frames=32, size=SIZE, seed=1)
     sequence = open_sequence(folder)
@@ -116,4 +117,4 @@ def test_a_parked_car_that_pulls_out_leaves_the_map(tmp_path):
     row = next(row for row in watch.rows() if row["object"] == 1)
     made_at_rest = sum(origin.owner == 1 and origin.frame < row["starts at frame"] for origin in watch.made[0].values())
     alive = row["points made at rest, alive at KF+5"]
-    assert made_at_rest >= 10 and alive is not None and alive <= made_at_rest / 4, (made_at_rest, alive)
+    assert made_at_rest >= 10 and alive is not None and alive <= made_at_rest / 8, (made_at_rest, alive)
