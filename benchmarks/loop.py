@@ -15,8 +15,8 @@ Sections (``--section``, all but ``long`` by default), each printing tables:
   street), with ggs and bow.
 - ``pairs``: EuRoC ``V1_01_easy_loop_pairs``: each detector's similarity of every pair of
   its four frames; the revisit pair must rank first among the pairs more than 5 s apart.
-- ``cost``: a GGS and a bag-of-words query against 1,000 keyframes, the pose graph of a
-  1,000-keyframe loop.
+- ``cost``: a GGS (place recognition's) and a bag-of-words query against 1,000
+  keyframes, the pose graph of a 1,000-keyframe loop.
 - ``long`` (not by default: two runs of ``--long-frames``): total wall time of a long
   synthetic ``loop2`` run with loop closing on (ggs) over off.
 
@@ -46,7 +46,7 @@ from extracts import data_dir, existing_extracts, real_sequences
 from pld_slam.config import Config, LoopConfig
 from pld_slam.datasets import StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
-from pld_slam.frontend.ggs import GgsDatabase, ggs_descriptor
+from pld_slam.frontend.ggs import GgsDatabase, ggs_and_place_descriptors
 from pld_slam.frontend.points import detect_image_points
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
 from pld_slam.loop.bow_detector import BowDatabase
@@ -204,7 +204,7 @@ def cost_rows(out: Path, vocabulary: Path, n_keyframes: int = 1000) -> pd.DataFr
     sequence = synthetic(out, "loop", 0, 360)
     images = [sequence[index].left for index in range(0, 360, 12)]
     config = Config()
-    ggs = [ggs_descriptor(image, config.ggs) for image in images]
+    ggs = [ggs_and_place_descriptors(image, config.ggs)[1] for image in images]  # what loop detection queries
     words = Vocabulary.load(vocabulary)
     vectors = [words.bow_vector(detect_image_points(image, config.points).descriptors) for image in images]
     ggs_database, bow_database = GgsDatabase(), BowDatabase()
