@@ -146,8 +146,8 @@ def test_quantised_distance_is_close_to_the_exact_one(scenes, ranks):
 
 
 def test_a_change_of_exposure_and_gamma_changes_only_the_grey_level_histograms(scenes):
-    """A monotonic grey change (gain, offset, gamma) keeps the ranks: the equalised GGS stays close,
-    the paper's moves farther than an unrelated street."""
+    """A monotonic grey change (gain, offset, gamma) keeps the ranks: the GGS of ranks stays close,
+    the paper's (grey levels) moves farther than an unrelated street."""
     original = scenes["original"]
     levels = np.arange(256) / 255.0
     relit = cv2.LUT(original, np.clip(255.0 * 0.7 * levels**0.6 + 30.0, 0, 255).astype(np.uint8))
