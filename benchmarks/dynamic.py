@@ -6,7 +6,8 @@ the dynamic grid only, the dynamic LLG only, both, and, where the sequence has m
 perfect detector would reach. Prints per run ATE RMSE (and its ratio to "neither" and to
 "masks"), the share of matched features marked dynamic, precision / recall of the dynamic
 point and line labels against the masks, the median ms per frame of detection (the two
-detectors and the static-world check) and in all.
+detectors and the static-world check), of the test of missed landmarks against the stereo
+pair (`pld_slam.tracking.see_through`), and in all.
 
 Sections (``--section``, all by default):
 
@@ -103,6 +104,7 @@ def rows_for(sequence: StereoSequence, variants: list[str], extra: tuple[str, ..
             "line P": dynamic["lines"]["precision"],
             "line R": dynamic["lines"]["recall"],
             "dyn ms": summary["timing_ms"]["dynamic"]["median"],
+            "see-through ms": summary["timing_ms"]["see_through"]["median"],
             "total ms": summary["timing_ms"]["total"]["median"],
             **label_count_columns(dynamic),
         })

@@ -51,7 +51,7 @@ from pld_slam.synth import write_sequence
 from pld_slam.system import RunResult, System
 
 SYNTHETIC_SCENARIOS = ("static", "dynamic", "lowtexture")
-TRACKING_STAGES = ("matching", "filters", "pose", "dynamic", "local_map")
+TRACKING_STAGES = ("matching", "filters", "pose", "dynamic", "local_map", "see_through")
 
 
 def run(sequence: StereoSequence, overrides: tuple[str, ...]) -> tuple[RunResult, dict]:

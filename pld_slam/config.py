@@ -324,8 +324,11 @@ class MappingConfig:
     )
     redundant_observers: int = _param(3, "other keyframes that make a landmark of a keyframe redundant", 1)
     dynamic_streak: int = _param(
-        2, "a landmark matched to a feature labelled dynamic, or lying under one, in this many frames since "
-        "tracking last found it static is removed", 1
+        2, "a landmark matched to a feature labelled dynamic, lying under one, or seen through, in this many "
+        "frames since tracking last found it static is removed", 1
+    )
+    see_through: bool = _param(
+        True, "a point landmark missed where the stereo pair sees a farther surface counts toward its dynamic streak"
     )
 
 

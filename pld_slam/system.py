@@ -62,12 +62,15 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
-STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "mapping", "loop", "total")
-"""Timed stages of one frame, in order; ``mapping`` (keyframes only) is the local mapping of
-a keyframe, local BA included; ``loop`` (keyframes only) its loop detection, verification
-and correction; ``total`` is the frame's whole wall time in the main thread. With
-``system.prefetch``, ``load`` and ``frontend`` ran in the background while the frame before
-was processed, and ``total`` holds only the wait for them, so the stages add up to more."""
+STAGES = ("load", "frontend", "matching", "filters", "pose", "dynamic", "local_map", "see_through", "mapping", "loop",
+          "total")
+"""Timed stages of one frame, in order; ``see_through`` is the test of the local map's missed
+points against the frame's stereo pair (`pld_slam.tracking.see_through`); ``mapping``
+(keyframes only) the local mapping of a keyframe, local BA included; ``loop`` (keyframes
+only) its loop detection, verification and correction; ``total`` the frame's whole wall
+time in the main thread. With ``system.prefetch``, ``load`` and ``frontend`` ran in the
+background while the frame before was processed, and ``total`` holds only the wait for
+them, so the stages add up to more."""
 
 
 @dataclass(frozen=True)
@@ -218,7 +221,7 @@ class System:
                 return self._before_first_usable(index, timestamp, reason, start)
             self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
-        tracked = self.tracker.track(features, moving_mask)
+        tracked = self.tracker.track(features, moving_mask, (frame.left, frame.right))
         stage_ms = {**extracted.stage_ms, **tracked.stage_ms}
         reference = self._map_frame(index, timestamp, features, tracked, stage_ms)
         T_c_r = self._pose_to_reference(tracked.T_w_c, reference)

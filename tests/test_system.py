@@ -42,7 +42,7 @@ ACCURACY_KEYS = (
     "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
     "r_rel_deg_per_100m", "n_matched",
 )
-TRACKING_STAGES = {"matching", "filters", "pose", "dynamic", "local_map"}
+TRACKING_STAGES = {"matching", "filters", "pose", "dynamic", "local_map", "see_through"}
 
 
 @pytest.fixture(scope="module")

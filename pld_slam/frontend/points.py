@@ -351,29 +351,47 @@ def sad_along_row(
 def _mean_free_sad(left_level, right_level, u, v, right_u, half_window, radius):
     """`sad_along_row` for windows inside both images: (K, 2 radius + 1) float64."""
     side = 2 * half_window + 1
-    n_pixels = side * side
     sad = np.empty((len(u), 2 * radius + 1))
-    left = np.empty(n_pixels)
-    right = np.empty(n_pixels)
+    left = np.empty(side * side)
+    right = np.empty(side * side)
     for k in range(len(u)):
-        i = 0
-        for dv in range(-half_window, half_window + 1):
-            for du in range(-half_window, half_window + 1):
-                left[i] = left_level[v[k] + dv, u[k] + du]
-                i += 1
-        left -= left.mean()
+        mean_free_window(left_level, u[k], v[k], half_window, left)
         for shift in range(-radius, radius + 1):
-            i = 0
-            for dv in range(-half_window, half_window + 1):
-                for du in range(-half_window, half_window + 1):
-                    right[i] = right_level[v[k] + dv, right_u[k] + shift + du]
-                    i += 1
-            right_mean = right.mean()
-            total = 0.0
-            for i in range(n_pixels):
-                total += abs(right[i] - right_mean - left[i])
-            sad[k, shift + radius] = total
+            sad[k, shift + radius] = sad_to_window(left, right_level, right_u[k] + shift, v[k], half_window, right)
     return sad
+
+
+@kernel
+def mean_free_window(image, u, v, half_window, out):
+    """Fill ``out`` ((2 half_window + 1)^2,) float64 with the window of ``image`` centred on
+    column ``u``, row ``v``, row by row, less its mean."""
+    i = 0
+    for dv in range(-half_window, half_window + 1):
+        for du in range(-half_window, half_window + 1):
+            out[i] = image[v + dv, u + du]
+            i += 1
+    out -= out.mean()
+
+
+@kernel
+def sad_to_window(window, image, u, v, half_window, scratch, limit=np.inf):
+    """Mean-free SAD between ``window`` (a `mean_free_window`) and the window of ``image``
+    centred on column ``u``, row ``v``; ``scratch`` is overwritten. The sum stops after the
+    row where it reaches ``limit`` (a search that only needs costs under it)."""
+    i = 0
+    for dv in range(-half_window, half_window + 1):
+        for du in range(-half_window, half_window + 1):
+            scratch[i] = image[v + dv, u + du]
+            i += 1
+    mean = scratch.mean()
+    total = 0.0
+    side = 2 * half_window + 1
+    for row in range(side):
+        for i in range(row * side, (row + 1) * side):
+            total += abs(scratch[i] - mean - window[i])
+        if total >= limit:
+            break
+    return total
 
 
 def parabola_minimum(sad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -69,7 +69,8 @@ matches) is matched like any other but never enters the pose: the landmark it ma
 reported (``dynamic_point_ids``) so that local mapping can remove landmarks that keep
 landing on movers, and tracking never re-admits them. So is a point landmark missed
 where a mover now stands at its depth (`landmarks_under_movers`): a parked car that pulls
-out takes its corners along. A mover that entered the map before
+out takes its corners along. (The tracker adds the missed points its stereo pair sees
+through, `pld_slam.tracking.see_through`.) A mover that entered the map before
 the detectors caught it (the first keyframe has no labels; a parked car that pulls out)
 can still pull the solve; with ``check_static_world`` the local map's solve gets the same
 check as the reference solve (`pld_slam.tracking.static_world`), the pose it started from
@@ -206,7 +207,8 @@ class LocalMapTracking:
         one and is an inlier of ``solution``, ``-1`` otherwise.
     visible_point_ids, visible_line_ids : landmarks predicted in view.
     dynamic_point_ids, dynamic_line_ids : landmarks matched to features labelled dynamic, and
-        points missed under a mover (`landmarks_under_movers`).
+        points missed under a mover (`landmarks_under_movers`) or, once the tracker has
+        added them, seen through (`pld_slam.tracking.see_through`).
     point_matches, line_matches : static matches that entered the solve.
     """
 
@@ -497,7 +499,8 @@ def landmarks_under_movers(
     on and now shows behind them. Counting a mover behind a landmark too left 4, but a
     mover anywhere in the cell is not one seen through the landmark's place (within 16 px
     of its projection, it left 7 again), and raw 0005 came out at 0.088 m against 0.086;
-    not kept.
+    not kept. The frame's stereo pair, which shows the farther surface wherever there is
+    texture, does better (`pld_slam.tracking.see_through`).
     """
     movers = np.flatnonzero(dynamic)
     if len(movers) == 0:

@@ -86,6 +86,7 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
+from pld_slam.tracking.see_through import landmarks_seen_through
 from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 
 
@@ -216,13 +217,21 @@ class Tracker:
         self._velocity = np.eye(4)
         self._prior_trusted = False
 
-    def track(self, features: StereoFeatures, moving_mask: np.ndarray | None = None) -> TrackedFrame:
+    def track(
+        self,
+        features: StereoFeatures,
+        moving_mask: np.ndarray | None = None,
+        images: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> TrackedFrame:
         """Estimate the pose of the frame whose stereo features are ``features``.
 
         ``moving_mask`` (H, W) bool, the frame's moving-object pixels, replaces the two
         detectors when given: the features on it are the dynamic ones (`moving_masks`), left
         out of the robust solve from the start, so that movers a solve would follow cannot
         pull it (the upper bound of the detectors must not share their failure).
+        ``images``, the rectified (left, right) pair (H, W) uint8 the features come from,
+        lets the map's missed points be tested for being seen through
+        (`pld_slam.tracking.see_through`, ``mapping.see_through``).
         """
         if self._reference is None:
             return self._first_frame(features, moving_mask)
@@ -278,6 +287,9 @@ class Tracker:
             clock.lap("local_map")
             if self._map_tracked(map_tracking):
                 T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
+                if images is not None and self._config.mapping.see_through:
+                    map_tracking = self._with_seen_through(map_tracking, *images)
+            clock.lap("see_through")
             counts = dataclasses.replace(
                 counts,
                 map_point_inliers=int(np.count_nonzero(map_tracking.point_ids >= 0)),
@@ -344,6 +356,17 @@ class Tracker:
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
         return map_tracking.solution.success and map_tracking.tracked_landmarks >= self._config.tracking.min_inliers
+
+    def _with_seen_through(self, map_tracking: LocalMapTracking, left: np.ndarray, right: np.ndarray
+                           ) -> LocalMapTracking:
+        """``map_tracking`` with the local map's points the pair sees through among its dynamic ones."""
+        seen_through = landmarks_seen_through(
+            self._camera, map_tracking.solution.T_c_w, self._local_map.points,
+            map_tracking.point_ids[map_tracking.point_ids >= 0], left, right,
+        )
+        return dataclasses.replace(
+            map_tracking, dynamic_point_ids=np.union1d(map_tracking.dynamic_point_ids, seen_through)
+        )
 
     def _tracks_few(self, map_tracking: LocalMapTracking) -> bool:
         """Whether the frame tracks fewer than ``keyframes.min_tracked_ratio`` of its reference keyframe's
