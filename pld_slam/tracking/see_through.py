@@ -72,7 +72,7 @@ DEPTH_TOLERANCE = 0.1
 MARGIN_PX = 1.0
 """... and by more than this disparity [px] (the search's whole-pixel step)."""
 MATCH_RATIO = 0.5
-"""... and match at most this times as badly as the landmark's own disparity."""
+"""... and cost at most this times both the cost at the landmark's own disparity and the window's contrast."""
 _MIN_DEPTH = 0.1
 """Landmarks nearer than this to the camera plane [m] are not tested."""
 
