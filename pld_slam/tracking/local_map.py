@@ -505,14 +505,24 @@ def landmarks_under_movers(
     movers = np.flatnonzero(dynamic)
     if len(movers) == 0:
         return np.zeros(0, dtype=np.int64)
-    p_c = transform_points(T_c_w, points.geometry)
-    in_front = p_c[:, 2] > _MIN_DEPTH
-    uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
-    missed = in_front & camera.inside_image(uv) & ~np.isin(points.ids, found)
+    p_c, uv, missed = missed_in_image(camera, T_c_w, points, found)
     query, train = pairs_within(uv, missed, stereo_points.uv[movers], np.full(len(uv), radius_px))
     depth = p_c[query, 2]
     at_its_depth = np.abs(stereo_points.points_c[movers[train], 2] - depth) <= MOVER_DEPTH_TOLERANCE * depth
     return points.ids[np.unique(query[at_its_depth])]
+
+
+def missed_in_image(
+    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, found: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The point landmarks a frame at ``T_c_w`` (4, 4) missed: in front of the camera, projecting
+    inside the image, and not among the ids the frame's solve ``found``. Returns the
+    landmarks in the camera frame (N, 3), their pixels (N, 2) (those behind the camera at the
+    principal point), and which are missed (N,) bool."""
+    p_c = transform_points(T_c_w, points.geometry)
+    in_front = p_c[:, 2] > _MIN_DEPTH
+    uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
+    return p_c, uv, in_front & camera.inside_image(uv) & ~np.isin(points.ids, found)
 
 
 def _map_observations(

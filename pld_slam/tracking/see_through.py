@@ -59,9 +59,8 @@ import numpy as np
 
 from pld_slam.frontend.points import mean_free_window, sad_to_window
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import transform_points
 from pld_slam.jit import kernel
-from pld_slam.tracking.local_map import LandmarkSnapshot
+from pld_slam.tracking.local_map import LandmarkSnapshot, missed_in_image
 
 HALF_WINDOW = 3
 """Windows are ``2 * HALF_WINDOW + 1`` px square, at full resolution."""
@@ -73,8 +72,6 @@ MARGIN_PX = 1.0
 """... and by more than this disparity [px] (the search's whole-pixel step)."""
 MATCH_RATIO = 0.5
 """... and cost at most this times both the cost at the landmark's own disparity and the window's contrast."""
-_MIN_DEPTH = 0.1
-"""Landmarks nearer than this to the camera plane [m] are not tested."""
 
 
 def landmarks_seen_through(
@@ -88,19 +85,13 @@ def landmarks_seen_through(
     """Ids (ascending) of the point landmarks in ``points`` that the rectified pair ``left``,
     ``right`` (H, W) uint8, taken at ``T_c_w`` (4, 4, world to camera), sees through (module
     docstring); ``found`` holds the ids the frame's solve found, which are not tested."""
-    p_c = transform_points(T_c_w, points.geometry)
-    in_front = p_c[:, 2] > _MIN_DEPTH
-    depth = np.where(in_front, p_c[:, 2], 1.0)
-    pixels = np.rint(camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0])))
-    disparity = camera.bf / depth + camera.disparity_offset
-    tested = np.flatnonzero(
-        in_front
-        & camera.inside_image(pixels, HALF_WINDOW)
-        & (pixels[:, 0] - np.ceil(disparity) - 1 >= HALF_WINDOW)
-        & ~np.isin(points.ids, found)
-    )
-    u, v = pixels[tested].astype(np.int64).T
-    return points.ids[tested[shows_farther_surface(left, right, u, v, disparity[tested])]]
+    p_c, uv, missed = missed_in_image(camera, T_c_w, points, found)
+    missed = np.flatnonzero(missed)
+    pixels = np.rint(uv[missed])
+    disparity = camera.bf / p_c[missed, 2] + camera.disparity_offset
+    windowed = camera.inside_image(pixels, HALF_WINDOW) & (pixels[:, 0] - np.ceil(disparity) - 1 >= HALF_WINDOW)
+    u, v = pixels[windowed].astype(np.int64).T
+    return points.ids[missed[windowed][shows_farther_surface(left, right, u, v, disparity[windowed])]]
 
 
 def shows_farther_surface(
