@@ -327,6 +327,10 @@ class MappingConfig:
         2, "a landmark matched to a feature labelled dynamic, lying under one, or seen through, in this many "
         "frames since tracking last found it static is removed", 1
     )
+    max_missed_frames: int = _param(
+        10, "a landmark in view (a point in front of the camera and inside the image, a line predicted in view) "
+        "that tracking does not find in this many frames, with no find in between, is removed (0: never)", 0
+    )
     see_through: bool = _param(
         True, "a point landmark missed where the stereo pair sees a farther surface counts toward its dynamic streak"
     )

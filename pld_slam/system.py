@@ -270,6 +270,7 @@ class System:
             mapping.record_tracking(
                 visible=(found.visible_point_ids, found.visible_line_ids),
                 found=(found.point_ids[found.point_ids >= 0], found.line_ids[found.line_ids >= 0]),
+                missed=(found.missed_point_ids, found.missed_line_ids),
                 dynamic=(found.dynamic_point_ids, found.dynamic_line_ids),
             )
         if tracked.keyframe is None:

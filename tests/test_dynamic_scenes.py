@@ -121,13 +121,16 @@ def test_a_parked_car_that_pulls_out_leaves_the_map(tmp_path, seed):
     are alive. Seed 1: none of 16 with the landmarks missed under a mover anywhere in the image
     counted as seen moving (`pld_slam.tracking.local_map.landmarks_under_movers`), 3 when only
     those the search of the local map tried counted, 8 when only those matched to dynamic
-    features counted. Seed 2: 2 of 25 with the points the stereo pair sees through counted
-    too (`pld_slam.tracking.see_through`), 6 without them."""
+    features counted. Seed 2: none of 25 with the points the stereo pair sees through counted
+    too (`pld_slam.tracking.see_through`) and the landmarks missed in view for
+    ``mapping.max_missed_frames`` frames removed (`pld_slam.mapping.local_mapping`, step 2);
+    1 without the first, 2 without the second, 6 without either."""
     made_at_rest, alive = parked_car_landmarks(tmp_path / "parked", seed)
     assert made_at_rest >= 10 and alive is not None and alive <= made_at_rest / 8, (made_at_rest, alive)
 
 
-def test_a_parked_car_leaves_fewer_landmarks_when_the_stereo_pair_can_see_through_them(tmp_path):
+@pytest.mark.parametrize("switched_off", ["mapping.see_through=false", "mapping.max_missed_frames=0"])
+def test_a_parked_car_leaves_fewer_landmarks_with_see_through_and_with_the_missed_streak(tmp_path, switched_off):
     with_it = parked_car_landmarks(tmp_path / "with", seed=2)
-    without = parked_car_landmarks(tmp_path / "without", seed=2, overrides=("mapping.see_through=false",))
+    without = parked_car_landmarks(tmp_path / "without", seed=2, overrides=(switched_off,))
     assert with_it[0] == without[0] and with_it[1] < without[1], (with_it, without)

@@ -1,4 +1,5 @@
-"""A landmark missed where a mover now stands at its depth (`pld_slam.tracking.local_map.landmarks_under_movers`)."""
+"""A landmark missed where a mover now stands at its depth (`pld_slam.tracking.local_map.landmarks_under_movers`),
+and one missed in view, not hidden by a mover (`pld_slam.tracking.local_map.landmarks_missed_in_view`)."""
 
 import numpy as np
 
@@ -9,6 +10,7 @@ from pld_slam.tracking.local_map import (
     _NEAREST_SCALE,
     MOVER_DEPTH_TOLERANCE,
     LandmarkSnapshot,
+    landmarks_missed_in_view,
     landmarks_under_movers,
 )
 
@@ -81,3 +83,27 @@ def test_a_landmark_beyond_its_search_range_is_judged_too():
     under = landmarks_under_movers(CAMERA, np.eye(4), seen_from_far, np.zeros(0, np.int64), points,
                                    np.array([True]), RADIUS_PX)
     assert under.tolist() == [10]
+
+
+def test_a_landmark_hidden_by_a_nearer_mover_is_not_missed_in_view():
+    # Camera at the world origin looking down +z; landmarks 100 px or more apart in the image:
+    landmarks = np.array([
+        [0.0, 0.0, 20.0],  # 0: a mover 10 m nearer 10 px away: hidden, not missed
+        [-6.0, 0.0, 20.0],  # 1: a mover at its depth: missed (the mover stands where it was)
+        [6.0, 0.0, 10.0],  # 2: a mover 10 m behind it: missed
+        [-6.0, -5.0, 20.0],  # 3: a static point nearer: missed (only movers hide)
+        [0.0, -5.0, 20.0],  # 4: found: not missed
+        [6.0, 5.0, 20.0],  # 5: a nearer mover 100 px away, outside the radius: missed
+        [0.0, 0.0, -5.0],  # 6: behind the camera: not in view
+    ])
+    mover_points = np.array([[0.25, 0.0, 10.0], [-5.8, 0.0, 20.5], [11.5, 0.0, 20.0], [0.1, -2.5, 10.0],
+                             [5.5, 2.5, 10.0]])
+    static_points = np.array([[-2.9, -2.5, 10.0]])
+    points = stereo_points(np.concatenate([mover_points, static_points]))
+    dynamic = np.array([True] * len(mover_points) + [False])
+    ids = snapshot(landmarks).ids
+    missed = landmarks_missed_in_view(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points, dynamic, RADIUS_PX)
+    assert missed.tolist() == ids[[1, 2, 3, 5]].tolist()
+    everything_static = landmarks_missed_in_view(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points,
+                                                 np.zeros(len(dynamic), dtype=bool), RADIUS_PX)
+    assert everything_static.tolist() == ids[[0, 1, 2, 3, 5]].tolist()

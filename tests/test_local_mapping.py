@@ -206,7 +206,7 @@ def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_shou
         found = [landmark for landmark, times in ((0, 2), (1, 1), (2, 8)) if frame < times]
         mapping.record_tracking(
             visible=(np.array([0, 1, 2]), nothing), found=(np.array(found, dtype=np.int64), nothing),
-            dynamic=(nothing, nothing),
+            missed=(nothing, nothing), dynamic=(nothing, nothing),
         )
     points = mapping.map.points
     assert points.visible.tolist() == [8, 8, 8, 0] and points.found.tolist() == [2, 1, 8, 0]
@@ -261,13 +261,16 @@ def test_the_observation_weight_is_judged_two_keyframes_after_creation_not_one()
 
 
 def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
-    mapping = local_mapping(config_with(min_observation_weight=1))
+    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=0))
     mapping.insert_keyframe(keyframe_seeing(mapping, points=range(2)))
     for _ in range(3):
         mapping.insert_keyframe(empty_keyframe(mapping))
     nothing = np.zeros(0, dtype=np.int64)
     for _ in range(10):  # visible, never found: would be culled if still recent
-        mapping.record_tracking(visible=(np.array([0]), nothing), found=(nothing, nothing), dynamic=(nothing, nothing))
+        mapping.record_tracking(
+            visible=(np.array([0]), nothing), found=(nothing, nothing), missed=(np.array([0]), nothing),
+            dynamic=(nothing, nothing),
+        )
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
     assert insertion.culled_landmarks == 0 and mapping.map.points.alive.tolist() == [True, True]
 
@@ -287,13 +290,55 @@ def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_
         moving = np.array([p for p, seen in enumerate(sightings) if seen[frame] == "M"], dtype=np.int64)
         moving_line = np.array([0] if frame < 2 else [], dtype=np.int64)
         mapping.record_tracking(
-            visible=(np.arange(5), np.arange(2)), found=(found, nothing), dynamic=(moving, moving_line)
+            visible=(np.arange(5), np.arange(2)), found=(found, nothing), missed=(nothing, nothing),
+            dynamic=(moving, moving_line),
         )
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
     assert mapping.map.points.alive.tolist() == [False, True, False, True, True]
     assert mapping.map.lines.alive.tolist() == [False, True]
     assert insertion.culled_landmarks == 3
     check_map_consistency(mapping.map)
+
+
+def test_a_landmark_of_any_age_missed_in_max_missed_frames_tracked_frames_in_a_row_is_removed():
+    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=4))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(4), lines=range(2)))
+    for _ in range(3):  # the landmarks are no longer recent: the found ratio no longer judges them
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    # What tracking did with each landmark, frame by frame: found (F), missed in view (x), or
+    # neither, out of view (-). Four misses in a row (point 0, line 0); four misses broken by a find
+    # (point 1); four misses with frames out of view between them, which count for nothing (point 2);
+    # found throughout (point 3).
+    sightings = {"points": ["FFxxxx", "xxFxxx", "xx--xx", "FFFFFF"], "lines": ["FFxxxx", "FFFFFF"]}
+    nothing = np.zeros(0, dtype=np.int64)
+
+    def marked(frame: int, marks: str) -> tuple[np.ndarray, np.ndarray]:
+        """(point ids, line ids) whose sighting in ``frame`` is one of ``marks``."""
+        return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] in marks], dtype=np.int64)
+                     for kind in ("points", "lines"))
+
+    for frame in range(6):
+        mapping.record_tracking(visible=marked(frame, "Fx"), found=marked(frame, "F"), missed=marked(frame, "x"),
+                                dynamic=(nothing, nothing))
+    insertion = mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.alive.tolist() == [False, True, False, True]
+    assert mapping.map.lines.alive.tolist() == [False, True]
+    assert insertion.culled_landmarks == 3
+    assert mapping.map.points.missed_streak[[1, 3]].tolist() == [3, 0]
+    check_map_consistency(mapping.map)
+
+
+def test_max_missed_frames_zero_never_removes_a_missed_landmark():
+    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=0))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(2)))
+    for _ in range(3):
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    nothing = np.zeros(0, dtype=np.int64)
+    for _ in range(50):
+        mapping.record_tracking(visible=(nothing, nothing), found=(nothing, nothing), missed=(np.array([0]), nothing),
+                                dynamic=(nothing, nothing))
+    mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.alive.tolist() == [True, True]
 
 
 def test_culling_a_landmark_two_keyframes_share_lowers_their_link():
@@ -303,7 +348,10 @@ def test_culling_a_landmark_two_keyframes_share_lowers_their_link():
     assert mapping.map.covisibility.shared(0) == {1: 5}
     nothing = np.zeros(0, dtype=np.int64)
     for _ in range(8):  # landmark 0: visible, never found
-        mapping.record_tracking(visible=(np.array([0]), nothing), found=(nothing, nothing), dynamic=(nothing, nothing))
+        mapping.record_tracking(
+            visible=(np.array([0]), nothing), found=(nothing, nothing), missed=(np.array([0]), nothing),
+            dynamic=(nothing, nothing),
+        )
     mapping.insert_keyframe(empty_keyframe(mapping))
     assert not mapping.map.points.alive[0]
     assert mapping.map.covisibility.shared(0) == {1: 4}

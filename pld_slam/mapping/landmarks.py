@@ -53,6 +53,8 @@ class Landmarks:
     - ``dynamic_streak``: (N,) frames since tracking last found it among the static
       features in which it matched a feature labelled dynamic or lay under one
       (`pld_slam.tracking.local_map.landmarks_under_movers`);
+    - ``missed_streak``: (N,) frames with the landmark in view in which tracking did not find
+      it, since it last found it;
     - ``first_keyframe``: (N,) id of the keyframe that created it;
     - ``n_observers``: (N,) keyframes observing it;
     - ``alive``: (N,) bool.
@@ -64,6 +66,7 @@ class Landmarks:
     visible = _Column()
     found = _Column()
     dynamic_streak = _Column()
+    missed_streak = _Column()
     first_keyframe = _Column()
     n_observers = _Column()
     alive = _Column()
@@ -96,6 +99,7 @@ class Landmarks:
             "visible": ((), np.int64, 0),
             "found": ((), np.int64, 0),
             "dynamic_streak": ((), np.int64, 0),
+            "missed_streak": ((), np.int64, 0),
             "first_keyframe": ((), np.int64, -1),
             "n_observers": ((), np.int64, 0),
             "alive": ((), np.bool_, False),
