@@ -328,8 +328,9 @@ class MappingConfig:
         "frames since tracking last found it static is removed", 1
     )
     max_missed_frames: int = _param(
-        10, "a landmark in view (a point in front of the camera and inside the image, a line predicted in view) "
-        "that tracking does not find in this many frames, with no find in between, is removed (0: never)", 0
+        10, "a landmark in view (a point in front of the camera, inside the image and not hidden by a nearer mover; "
+        "a line predicted in view) that tracking does not find in this many frames, with no find in between, is "
+        "removed (0: never)", 0
     )
     see_through: bool = _param(
         True, "a point landmark missed where the stereo pair sees a farther surface counts toward its dynamic streak"
