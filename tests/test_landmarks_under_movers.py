@@ -1,5 +1,5 @@
-"""A landmark missed where a mover now stands at its depth (`pld_slam.tracking.local_map.landmarks_under_movers`),
-and one missed in view, not hidden by a mover (`pld_slam.tracking.local_map.landmarks_missed_in_view`)."""
+"""Missed point landmarks judged by the movers near them (`pld_slam.tracking.local_map.missed_near_movers`):
+under a mover at their depth, and missed in view unless a nearer mover hides them."""
 
 import numpy as np
 
@@ -10,8 +10,8 @@ from pld_slam.tracking.local_map import (
     _NEAREST_SCALE,
     MOVER_DEPTH_TOLERANCE,
     LandmarkSnapshot,
-    landmarks_missed_in_view,
-    landmarks_under_movers,
+    missed_in_image,
+    missed_near_movers,
 )
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
@@ -34,6 +34,11 @@ def stereo_points(points_c: np.ndarray) -> StereoPoints:
                         disparity=disparity, u_right=uv[:, 0] - disparity, points_c=points_c)
 
 
+def judged(points_w: LandmarkSnapshot, found: np.ndarray, points: StereoPoints, dynamic: np.ndarray):
+    """`missed_near_movers` for a camera at the world origin looking down +z."""
+    return missed_near_movers(missed_in_image(CAMERA, np.eye(4), points_w, found), points, dynamic, RADIUS_PX)
+
+
 def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mover():
     # Camera at the world origin looking down +z; landmarks at least 100 px apart in the image, and
     # what stands near each one's pixel now (all within 10 px of it but the last):
@@ -52,7 +57,7 @@ def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mo
     points = stereo_points(np.concatenate([mover_points, static_points]))
     dynamic = np.array([True] * len(mover_points) + [False])
     ids = snapshot(landmarks).ids
-    under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points, dynamic, RADIUS_PX)
+    under = judged(snapshot(landmarks), ids[[4]], points, dynamic).under_movers
     assert under.tolist() == [ids[0]]
 
 
@@ -62,15 +67,14 @@ def test_the_depth_band_is_relative_to_the_landmark_depth():
     outside = 30.0 * (1.0 + 1.1 * MOVER_DEPTH_TOLERANCE)
     for depth, expected in ((inside, [10]), (outside, [])):
         points = stereo_points(np.array([[0.3, 0.0, depth]]))
-        under = landmarks_under_movers(CAMERA, np.eye(4), snapshot(landmark), np.zeros(0, np.int64), points,
-                                       np.array([True]), RADIUS_PX)
+        under = judged(snapshot(landmark), np.zeros(0, np.int64), points, np.array([True])).under_movers
         assert under.tolist() == expected, depth
 
 
 def test_a_landmark_beyond_its_search_range_is_judged_too():
     """The search skips a point landmark outside 0.8 x its nearest to 1.2 x its farthest distance;
     a mover at its depth still marks it: the range bounds where its descriptor matches, not where
-    it can be seen (`landmarks_under_movers`)."""
+    it can be seen (`missed_near_movers`)."""
     landmark = np.array([[0.0, 0.0, 5.0]])
     seen_from_far = LandmarkSnapshot(
         ids=np.array([10]), geometry=landmark, descriptors=np.zeros((1, 32), np.uint8),
@@ -80,8 +84,7 @@ def test_a_landmark_beyond_its_search_range_is_judged_too():
     nearest_searched = _NEAREST_SCALE * 40.0 / points_config.scale_factor ** (points_config.n_levels - 1)
     assert nearest_searched > 5.0  # the search of the local map skips it
     points = stereo_points(np.array([[0.2, 0.0, 5.2]]))
-    under = landmarks_under_movers(CAMERA, np.eye(4), seen_from_far, np.zeros(0, np.int64), points,
-                                   np.array([True]), RADIUS_PX)
+    under = judged(seen_from_far, np.zeros(0, np.int64), points, np.array([True])).under_movers
     assert under.tolist() == [10]
 
 
@@ -102,8 +105,7 @@ def test_a_landmark_hidden_by_a_nearer_mover_is_not_missed_in_view():
     points = stereo_points(np.concatenate([mover_points, static_points]))
     dynamic = np.array([True] * len(mover_points) + [False])
     ids = snapshot(landmarks).ids
-    missed = landmarks_missed_in_view(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points, dynamic, RADIUS_PX)
+    missed = judged(snapshot(landmarks), ids[[4]], points, dynamic).in_view
     assert missed.tolist() == ids[[1, 2, 3, 5]].tolist()
-    everything_static = landmarks_missed_in_view(CAMERA, np.eye(4), snapshot(landmarks), ids[[4]], points,
-                                                 np.zeros(len(dynamic), dtype=bool), RADIUS_PX)
+    everything_static = judged(snapshot(landmarks), ids[[4]], points, np.zeros(len(dynamic), dtype=bool)).in_view
     assert everything_static.tolist() == ids[[0, 1, 2, 3, 5]].tolist()

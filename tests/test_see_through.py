@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.tracking.local_map import LandmarkSnapshot
+from pld_slam.tracking.local_map import LandmarkSnapshot, missed_in_image
 from pld_slam.tracking.see_through import (
     DEPTH_TOLERANCE,
     HALF_WINDOW,
@@ -79,7 +79,8 @@ def test_only_a_missed_landmark_in_front_of_the_surface_the_pair_shows_is_seen_t
         at_pixel(250, 200, -5.0),  # 7: behind the camera: not tested
     ])
     points = snapshot(landmarks)
-    seen = landmarks_seen_through(CAMERA, np.eye(4), points, points.ids[[5]], *as_images(left, right))
+    seen = landmarks_seen_through(CAMERA, missed_in_image(CAMERA, np.eye(4), points, points.ids[[5]]),
+                                  *as_images(left, right))
     assert seen.tolist() == [points.ids[0]]
 
 
@@ -89,7 +90,8 @@ def test_the_surface_seen_must_lie_farther_than_the_depth_tolerance(share):
     # A landmark whose disparity exceeds the wall's by `share` of it plus the margin.
     disparity = CAMERA.bf / WALL_DEPTH * (1.0 + share) + MARGIN_PX
     points = snapshot(np.array([at_pixel(320, 240, CAMERA.bf / disparity)]))
-    seen = landmarks_seen_through(CAMERA, np.eye(4), points, np.zeros(0, np.int64), *as_images(left, right))
+    seen = landmarks_seen_through(CAMERA, missed_in_image(CAMERA, np.eye(4), points, np.zeros(0, np.int64)),
+                                  *as_images(left, right))
     assert len(seen) == (share > DEPTH_TOLERANCE)
 
 

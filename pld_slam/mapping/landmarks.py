@@ -52,7 +52,7 @@ class Landmarks:
       how many of them tracking matched it (the culling test of ORB-SLAM2);
     - ``dynamic_streak``: (N,) frames since tracking last found it among the static
       features in which it matched a feature labelled dynamic or lay under one
-      (`pld_slam.tracking.local_map.landmarks_under_movers`);
+      (`pld_slam.tracking.local_map.missed_near_movers`);
     - ``missed_streak``: (N,) frames with the landmark in view in which tracking did not find
       it, since it last found it;
     - ``first_keyframe``: (N,) id of the keyframe that created it;

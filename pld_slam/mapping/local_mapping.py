@@ -16,7 +16,7 @@ a method below:
    longer recent. A landmark of any age seen moving in ``mapping.dynamic_streak`` (2)
    frames since tracking last found it among the static features dies too (the paper:
    movers must not stay in the map): matched to a feature labelled dynamic, predicted
-   where it is missed under a mover (`pld_slam.tracking.local_map.landmarks_under_movers`),
+   where it is missed under a mover (`pld_slam.tracking.local_map.missed_near_movers`),
    or missed where the stereo pair shows a farther surface (`pld_slam.tracking.see_through`).
    A streak, not a share of all its sightings: a parked car that pulls out was found
    static in dozens of frames, and a rule that asked for as many moving sightings as
@@ -29,7 +29,7 @@ a method below:
    seeds 0-2) within 1 %; convoy 0.073 and 0.075 m (true masks: 0.063 m), crossing 0.013 m
    both; KITTI 06 0.0305 m both, raw 0005 0.0863 and 0.0860 m. Judging every landmark in
    the image, not only those the search of the local map tried, then left 7 and none
-   (`landmarks_under_movers`, "In the image, not only searched"). Counting also the
+   (`missed_near_movers`, "In the image, not only searched"). Counting also the
    missed points the frame's stereo pair sees through (`pld_slam.tracking.see_through`,
    ``mapping.see_through``) left 3 and none; convoy 0.075 -> 0.072 m (masks 0.064),
    crossing, dynamic and static within a millimetre, KITTI 06 and raw 0005 unchanged
@@ -38,7 +38,7 @@ a method below:
    frames, with no find in between, dies too: a point in front of the camera and inside the
    image, beyond its search range or not (the range bounds where its descriptor matches, not
    where it can be seen), and not hidden by a nearer mover
-   (`pld_slam.tracking.local_map.landmarks_missed_in_view`); a line predicted in view.
+   (`pld_slam.tracking.local_map.missed_near_movers`); a line predicted in view.
    ORB-SLAM2 judges only new landmarks by how often they are found; what that leaves here
    is what the movers' rules above cannot see: a landmark whose place now shows a flat
    background (a corner of the car's outline, mapped in front of the car), or a car's

@@ -68,7 +68,7 @@ Dynamic features. A feature labelled dynamic (by the detectors, on the reference
 matches) is matched like any other but never enters the pose: the landmark it matched is
 reported (``dynamic_point_ids``) so that local mapping can remove landmarks that keep
 landing on movers, and tracking never re-admits them. So is a point landmark missed
-where a mover now stands at its depth (`landmarks_under_movers`): a parked car that pulls
+where a mover now stands at its depth (`missed_near_movers`): a parked car that pulls
 out takes its corners along. (The tracker adds the missed points its stereo pair sees
 through, `pld_slam.tracking.see_through`.) A mover that entered the map before
 the detectors caught it (the first keyframe has no labels; a parked car that pulls out)
@@ -104,7 +104,7 @@ _MIN_DEPTH = 0.1
 """A landmark nearer than this to the camera plane [m] is not searched for."""
 MOVER_DEPTH_TOLERANCE = 0.2
 """A mover's point within this share of a landmark's depth stands at its depth
-(`landmarks_under_movers`): a car 4.5 m long seen from 20 m spans about 10 % in depth and
+(`missed_near_movers`): a car 4.5 m long seen from 20 m spans about 10 % in depth and
 its stereo depth errs by about 5 % there, while what it hides lies farther behind.
 0.35 left the same landmarks on the synthetic ``parked_then_moving`` cars."""
 _NEAREST_SCALE, _FARTHEST_SCALE = 0.8, 1.2
@@ -196,6 +196,26 @@ class MapMatches:
 
 
 @dataclass(frozen=True)
+class MissedPoints:
+    """The point landmarks of a local-map snapshot that a frame missed (`missed_in_image`).
+
+    Attributes
+    ----------
+    ids : (N,) int64 landmark ids of the snapshot.
+    p_c : (N, 3) the landmarks in the camera frame [m].
+    uv : (N, 2) their pixels (those behind the camera at the principal point).
+    missed : (N,) bool in front of the camera, projecting inside the image, and not among the
+        ids the frame's solve found as inliers (matched to nothing, or to a feature the
+        solve rejected).
+    """
+
+    ids: np.ndarray
+    p_c: np.ndarray
+    uv: np.ndarray
+    missed: np.ndarray
+
+
+@dataclass(frozen=True)
 class LocalMapTracking:
     """The outcome of tracking the local map.
 
@@ -206,12 +226,12 @@ class LocalMapTracking:
     point_ids, line_ids : (P,), (L,) int64 landmark of each keypoint / line that matched
         one and is an inlier of ``solution``, ``-1`` otherwise.
     visible_point_ids, visible_line_ids : landmarks predicted in view (within the search's bounds).
-    missed_point_ids, missed_line_ids : landmarks in view the solve did not find: points in
-        front of the camera and inside the image and not hidden by a mover
-        (`landmarks_missed_in_view`), lines predicted in view.
+    missed : the local map's points the solve missed (`missed_in_image`).
+    missed_point_ids, missed_line_ids : landmarks in view the solve did not find: points
+        missed and not hidden by a mover (`missed_near_movers`), lines predicted in view.
     dynamic_point_ids, dynamic_line_ids : landmarks matched to features labelled dynamic, and
-        points missed under a mover (`landmarks_under_movers`) or, once the tracker has
-        added them, seen through (`pld_slam.tracking.see_through`).
+        points missed under a mover (`missed_near_movers`) or, once the tracker has added
+        them, seen through (`pld_slam.tracking.see_through`).
     point_matches, line_matches : static matches that entered the solve.
     """
 
@@ -220,6 +240,7 @@ class LocalMapTracking:
     line_ids: np.ndarray
     visible_point_ids: np.ndarray
     visible_line_ids: np.ndarray
+    missed: MissedPoints
     missed_point_ids: np.ndarray
     missed_line_ids: np.ndarray
     dynamic_point_ids: np.ndarray
@@ -442,15 +463,10 @@ def track_local_map(
         solution, moving_ids = static.solution, map_points.landmarks[static.moving[: len(map_points)]]
     map_inliers = solution.inliers.points[: len(map_points)]
     line_ids = _inlier_ids(len(features.lines), map_lines, solution.inliers.lines[: len(map_lines)])
-    found_points = map_points.landmarks[map_inliers]
     matched_to_movers = local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous]
-    under_movers = landmarks_under_movers(
-        camera, solution.T_c_w, local_map.points, found_points,
-        features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width,
-    )
-    missed_points = landmarks_missed_in_view(
-        camera, solution.T_c_w, local_map.points, found_points,
-        features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width,
+    missed = missed_in_image(camera, solution.T_c_w, local_map.points, map_points.landmarks[map_inliers])
+    near_movers = missed_near_movers(
+        missed, features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width
     )
     return LocalMapTracking(
         solution=solution,
@@ -458,34 +474,52 @@ def track_local_map(
         line_ids=line_ids,
         visible_point_ids=local_map.points.ids[point_matches.visible],
         visible_line_ids=local_map.lines.ids[line_matches.visible],
-        missed_point_ids=missed_points,
+        missed=missed,
+        missed_point_ids=near_movers.in_view,
         missed_line_ids=np.setdiff1d(local_map.lines.ids[line_matches.visible], line_ids),
-        dynamic_point_ids=np.unique(np.concatenate([matched_to_movers, moving_ids, under_movers])),
+        dynamic_point_ids=np.unique(np.concatenate([matched_to_movers, moving_ids, near_movers.under_movers])),
         dynamic_line_ids=local_map.lines.ids[_dynamic(line_matches.matches, dynamic_lines).previous],
         point_matches=len(map_points),
         line_matches=len(map_lines),
     )
 
 
-def landmarks_under_movers(
-    camera: StereoCamera,
-    T_c_w: np.ndarray,
-    points: LandmarkSnapshot,
-    found: np.ndarray,
-    stereo_points: StereoPoints,
-    dynamic: np.ndarray,
-    radius_px: float,
-) -> np.ndarray:
-    """Ids of the point landmarks a frame misses where a mover now stands (ascending).
+def missed_in_image(
+    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, found: np.ndarray
+) -> MissedPoints:
+    """The point landmarks of ``points`` a frame at ``T_c_w`` (4, 4) missed, ``found`` (K,) holding
+    the ids its solve found (`MissedPoints`)."""
+    p_c = transform_points(T_c_w, points.geometry)
+    in_front = p_c[:, 2] > _MIN_DEPTH
+    uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
+    return MissedPoints(points.ids, p_c, uv, in_front & camera.inside_image(uv) & ~np.isin(points.ids, found))
 
-    A landmark is missed when it lies in front of the camera ``T_c_w`` (4, 4), projects
-    inside the image and is not among the ids the solve ``found`` as inliers (matched to
-    nothing, or to a feature the solve rejected); it lies under a mover when a stereo
-    point labelled dynamic (``dynamic`` (S,) bool over ``stereo_points``) is within
-    ``radius_px`` of its projection at ``T_c_w`` (4, 4) and at its depth, within
-    `MOVER_DEPTH_TOLERANCE` of it.
 
-    Why: a parked car that pulls out takes its corners along, so its landmarks are not
+@dataclass(frozen=True)
+class MissedNearMovers:
+    """What the movers near a frame's missed point landmarks say of them (`missed_near_movers`).
+
+    Attributes
+    ----------
+    under_movers : ids (ascending) of the landmarks missed where a mover now stands at their depth.
+    in_view : ids (ascending) of the landmarks missed and not hidden by a nearer mover.
+    """
+
+    under_movers: np.ndarray
+    in_view: np.ndarray
+
+
+def missed_near_movers(
+    missed: MissedPoints, stereo_points: StereoPoints, dynamic: np.ndarray, radius_px: float
+) -> MissedNearMovers:
+    """Judge the ``missed`` point landmarks by the stereo points labelled dynamic (``dynamic``
+    (S,) bool over ``stereo_points``) within ``radius_px`` of their projections: a landmark
+    lies under a mover when such a point lies at its depth, within `MOVER_DEPTH_TOLERANCE`
+    of it; it is hidden when such a point lies nearer than that. Those under movers count
+    toward local mapping's dynamic streak, those not hidden toward its missed streak
+    (``mapping.max_missed_frames``; `pld_slam.mapping.local_mapping`, step 2).
+
+    Under a mover, why: a parked car that pulls out takes its corners along, so its landmarks are not
     matched again, to dynamic features or any others, or only while it creeps, until the
     solve rejects them; they are merely missed, and misses alone cannot tell a mover from
     a static point that changed appearance or was briefly hidden. A mover standing where
@@ -514,66 +548,25 @@ def landmarks_under_movers(
     of its projection, it left 7 again), and raw 0005 came out at 0.088 m against 0.086;
     not kept. The frame's stereo pair, which shows the farther surface wherever there is
     texture, does better (`pld_slam.tracking.see_through`).
+
+    Hidden is not missed. Behind a truck that fills half the view for seconds, the static
+    landmarks are merely hidden. Counting them as missed removed them, the local map thinned,
+    and on the synthetic ``convoy`` seed 2 with the true masks a frame's guided pose then lost
+    to one from scratch 3.7 m off (the facades' repeated windows), ATE 0.048 -> 1.85 m; not
+    counting the hidden ones, 0.049 m.
     """
-    p_c, uv, missed = missed_in_image(camera, T_c_w, points, found)
-    query, mover_depth = _movers_near(uv, missed, stereo_points, dynamic, radius_px)
-    depth = p_c[query, 2]
-    at_its_depth = np.abs(mover_depth - depth) <= MOVER_DEPTH_TOLERANCE * depth
-    return points.ids[np.unique(query[at_its_depth])]
-
-
-def landmarks_missed_in_view(
-    camera: StereoCamera,
-    T_c_w: np.ndarray,
-    points: LandmarkSnapshot,
-    found: np.ndarray,
-    stereo_points: StereoPoints,
-    dynamic: np.ndarray,
-    radius_px: float,
-) -> np.ndarray:
-    """Ids of the point landmarks a frame misses in view (ascending): missed (`missed_in_image`)
-    and not hidden by a mover, a stereo point labelled dynamic (``dynamic`` (S,) bool over
-    ``stereo_points``) within ``radius_px`` of the projection at ``T_c_w`` (4, 4) and nearer
-    than the landmark by more than `MOVER_DEPTH_TOLERANCE` of its depth. Local mapping removes
-    a landmark missed in view for ``mapping.max_missed_frames`` frames
-    (`pld_slam.mapping.local_mapping`, step 2).
-
-    Why not every miss: behind a truck that fills half the view for seconds, the static
-    landmarks are merely hidden. Counting them too removed them, the local map thinned, and on
-    the synthetic ``convoy`` seed 2 with the true masks a frame's guided pose then lost to one
-    from scratch 3.7 m off (the facades' repeated windows), ATE 0.048 -> 1.85 m; not counting
-    the hidden ones, 0.049 m.
-    """
-    p_c, uv, missed = missed_in_image(camera, T_c_w, points, found)
-    query, mover_depth = _movers_near(uv, missed, stereo_points, dynamic, radius_px)
-    missed[query[mover_depth < (1.0 - MOVER_DEPTH_TOLERANCE) * p_c[query, 2]]] = False
-    return points.ids[missed]
-
-
-def _movers_near(
-    uv: np.ndarray, candidates: np.ndarray, stereo_points: StereoPoints, dynamic: np.ndarray, radius_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Each pair of a ``candidates`` (N,) bool landmark, at pixel ``uv`` (N, 2), and a stereo
-    point labelled ``dynamic`` (S,) bool within ``radius_px`` of it: the landmark's index
-    (K,) int64 and the mover point's depth (K,) [m]."""
     movers = np.flatnonzero(dynamic)
-    if len(movers) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0)
-    query, train = pairs_within(uv, candidates, stereo_points.uv[movers], np.full(len(uv), radius_px))
-    return query, stereo_points.points_c[movers[train], 2]
-
-
-def missed_in_image(
-    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, found: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The point landmarks a frame at ``T_c_w`` (4, 4) missed: in front of the camera, projecting
-    inside the image, and not among the ids the frame's solve ``found``. Returns the
-    landmarks in the camera frame (N, 3), their pixels (N, 2) (those behind the camera at the
-    principal point), and which are missed (N,) bool."""
-    p_c = transform_points(T_c_w, points.geometry)
-    in_front = p_c[:, 2] > _MIN_DEPTH
-    uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
-    return p_c, uv, in_front & camera.inside_image(uv) & ~np.isin(points.ids, found)
+    query = np.zeros(0, dtype=np.int64)
+    mover_depth = np.zeros(0)
+    if len(movers):
+        query, train = pairs_within(missed.uv, missed.missed, stereo_points.uv[movers],
+                                    np.full(len(missed.uv), radius_px))
+        mover_depth = stereo_points.points_c[movers[train], 2]
+    depth = missed.p_c[query, 2]
+    at_its_depth = np.abs(mover_depth - depth) <= MOVER_DEPTH_TOLERANCE * depth
+    in_view = missed.missed.copy()
+    in_view[query[mover_depth < (1.0 - MOVER_DEPTH_TOLERANCE) * depth]] = False
+    return MissedNearMovers(under_movers=missed.ids[np.unique(query[at_its_depth])], in_view=missed.ids[in_view])
 
 
 def _map_observations(

@@ -1,7 +1,7 @@
 """Point landmarks the stereo pair sees through: a farther surface shows where the landmark should be.
 
 A parked car that pulls out leaves its landmarks in the map. Most of them die through
-`pld_slam.tracking.local_map.landmarks_under_movers`: the car, labelled dynamic, still
+`pld_slam.tracking.local_map.missed_near_movers`: the car, labelled dynamic, still
 stands at their depth. What that rule cannot see is a landmark with nothing moving at its
 depth any more: the car has driven on, or the landmark was never on a surface at all (a
 corner of the car's outline against the background, triangulated a few metres in front
@@ -62,7 +62,7 @@ import numpy as np
 from pld_slam.frontend.points import mean_free_window, sad_to_window
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.jit import kernel
-from pld_slam.tracking.local_map import LandmarkSnapshot, missed_in_image
+from pld_slam.tracking.local_map import MissedPoints
 
 HALF_WINDOW = 3
 """Windows are ``2 * HALF_WINDOW + 1`` px square, at full resolution."""
@@ -76,24 +76,18 @@ MATCH_RATIO = 0.5
 """... and cost at most this times both the cost at the landmark's own disparity and the window's contrast."""
 
 
-def landmarks_seen_through(
-    camera: StereoCamera,
-    T_c_w: np.ndarray,
-    points: LandmarkSnapshot,
-    found: np.ndarray,
-    left: np.ndarray,
-    right: np.ndarray,
-) -> np.ndarray:
-    """Ids (ascending) of the point landmarks in ``points`` that the rectified pair ``left``,
-    ``right`` (H, W) uint8, taken at ``T_c_w`` (4, 4, world to camera), sees through (module
-    docstring); ``found`` holds the ids the frame's solve found, which are not tested."""
-    p_c, uv, missed = missed_in_image(camera, T_c_w, points, found)
-    missed = np.flatnonzero(missed)
-    pixels = np.rint(uv[missed])
-    disparity = camera.bf / p_c[missed, 2] + camera.disparity_offset
+def landmarks_seen_through(camera: StereoCamera, missed: MissedPoints, left: np.ndarray, right: np.ndarray
+                           ) -> np.ndarray:
+    """Ids (ascending) of the ``missed`` point landmarks (`missed_in_image`: in front of the
+    camera, inside the image, not found by the frame's solve) that the rectified pair
+    ``left``, ``right`` (H, W) uint8, taken where they were projected, sees through (module
+    docstring)."""
+    tested = np.flatnonzero(missed.missed)
+    pixels = np.rint(missed.uv[tested])
+    disparity = camera.bf / missed.p_c[tested, 2] + camera.disparity_offset
     windowed = camera.inside_image(pixels, HALF_WINDOW) & (pixels[:, 0] - np.ceil(disparity) - 1 >= HALF_WINDOW)
     u, v = pixels[windowed].astype(np.int64).T
-    return points.ids[missed[windowed][shows_farther_surface(left, right, u, v, disparity[windowed])]]
+    return missed.ids[tested[windowed][shows_farther_surface(left, right, u, v, disparity[windowed])]]
 
 
 def shows_farther_surface(

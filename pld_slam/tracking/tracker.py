@@ -360,10 +360,7 @@ class Tracker:
     def _with_seen_through(self, map_tracking: LocalMapTracking, left: np.ndarray, right: np.ndarray
                            ) -> LocalMapTracking:
         """``map_tracking`` with the local map's points the pair sees through among its dynamic ones."""
-        seen_through = landmarks_seen_through(
-            self._camera, map_tracking.solution.T_c_w, self._local_map.points,
-            map_tracking.point_ids[map_tracking.point_ids >= 0], left, right,
-        )
+        seen_through = landmarks_seen_through(self._camera, map_tracking.missed, left, right)
         return dataclasses.replace(
             map_tracking, dynamic_point_ids=np.union1d(map_tracking.dynamic_point_ids, seen_through)
         )
