@@ -327,6 +327,10 @@ class MappingConfig:
         2, "a landmark matched to a feature labelled dynamic, lying under one, or seen through, in this many "
         "frames since tracking last found it static is removed", 1
     )
+    dynamic_memory: int = _param(
+        10, "a landmark found static within this many tracked frames after it was seen moving keeps its dynamic "
+        "streak (a slow mover is still found where it was; 0: any find ends the streak)", 0
+    )
     max_missed_frames: int = _param(
         10, "a landmark in view (a point in front of the camera, inside the image and not hidden by a nearer mover; "
         "a line predicted in view) that tracking does not find in this many frames, with no find in between, is "

@@ -276,7 +276,7 @@ def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
 
 
 def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_removed():
-    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2))
+    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=0))
     mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5), lines=range(2)))
     for _ in range(3):  # the landmarks are no longer recent: only the dynamic rule can remove them
         mapping.insert_keyframe(empty_keyframe(mapping))
@@ -297,6 +297,33 @@ def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_
     assert mapping.map.points.alive.tolist() == [False, True, False, True, True]
     assert mapping.map.lines.alive.tolist() == [False, True]
     assert insertion.culled_landmarks == 3
+    check_map_consistency(mapping.map)
+
+
+def test_a_find_soon_after_a_landmark_was_seen_moving_does_not_end_its_dynamic_streak():
+    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=3))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(3), lines=range(1)))
+    for _ in range(3):
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    # Seen moving (M), found static (F), neither (-). A slow mover found in the 3 frames after it was
+    # seen moving, then seen moving again (point 0, line 0); found 4 frames after, which clears the
+    # streak (point 1); found throughout (point 2).
+    sightings = {"points": ["MFFM--", "MFFFFM", "FFFFFF"], "lines": ["MFFM--"]}
+
+    def marked(frame: int, mark: str) -> tuple[np.ndarray, np.ndarray]:
+        """(point ids, line ids) whose sighting in ``frame`` is ``mark``."""
+        return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] == mark], dtype=np.int64)
+                     for kind in ("points", "lines"))
+
+    nothing = np.zeros(0, dtype=np.int64)
+    for frame in range(6):
+        mapping.record_tracking(visible=marked(frame, "F"), found=marked(frame, "F"), missed=(nothing, nothing),
+                                dynamic=marked(frame, "M"))
+    insertion = mapping.insert_keyframe(empty_keyframe(mapping))
+    assert mapping.map.points.alive.tolist() == [False, True, True]
+    assert mapping.map.lines.alive.tolist() == [False]
+    assert insertion.culled_landmarks == 2
+    assert mapping.map.points.dynamic_streak[1] == 1
     check_map_consistency(mapping.map)
 
 

@@ -197,7 +197,7 @@ def test_remove_landmarks_clears_the_id_in_every_observing_keyframe():
     check_map_consistency(world_map)
 
 
-def test_replace_landmark_moves_the_observations_adds_up_the_counts_and_keeps_the_longer_streak():
+def test_replace_landmark_moves_the_observations_adds_up_the_counts_and_keeps_the_longer_streak_and_later_motion():
     world_map = Map(covisibility_min_shared=20)
     add_landmarks(world_map, 2)
     points = world_map.points
@@ -205,6 +205,7 @@ def test_replace_landmark_moves_the_observations_adds_up_the_counts_and_keeps_th
     both = insert_observer(world_map, point_ids=[0, 1])  # sees old and new
     third = insert_observer(world_map, point_ids=[-1, 1])  # sees new only
     points.found[:2], points.visible[:2], points.dynamic_streak[:2] = [3, 4], [5, 9], [3, 2]
+    points.moving_frame[:2] = [12, 7]
     world_map.replace_landmark(points, old=0, new=1)
     assert first.point_ids.tolist() == [1, -1]
     assert both.point_ids.tolist() == [-1, 1]  # keeps its own observation of the new landmark
@@ -213,6 +214,7 @@ def test_replace_landmark_moves_the_observations_adds_up_the_counts_and_keeps_th
     assert points.n_observers.tolist() == [0, 3]
     assert points.alive.tolist() == [False, True]
     assert points.found[1] == 7 and points.visible[1] == 14 and points.dynamic_streak[1] == 3
+    assert points.moving_frame[1] == 12
     check_map_consistency(world_map)
 
 

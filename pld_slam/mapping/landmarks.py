@@ -27,6 +27,8 @@ import numpy as np
 from pld_slam.frontend.descriptors import DESCRIPTOR_BYTES
 
 _INITIAL_CAPACITY = 256
+NEVER_MOVING = -(2**40)
+"""``moving_frame`` of a landmark never seen moving: further back than any memory reaches."""
 
 
 class _Column:
@@ -52,7 +54,10 @@ class Landmarks:
       how many of them tracking matched it (the culling test of ORB-SLAM2);
     - ``dynamic_streak``: (N,) frames since tracking last found it among the static
       features in which it matched a feature labelled dynamic or lay under one
-      (`pld_slam.tracking.local_map.missed_near_movers`);
+      (`pld_slam.tracking.local_map.missed_near_movers`); a find within
+      ``mapping.dynamic_memory`` tracked frames of such a frame does not end the streak;
+    - ``moving_frame``: (N,) rank, among the tracked frames, of the last frame that saw it
+      moving (a large negative number before any);
     - ``missed_streak``: (N,) frames with the landmark in view in which tracking did not find
       it, since it last found it;
     - ``first_keyframe``: (N,) id of the keyframe that created it;
@@ -67,6 +72,7 @@ class Landmarks:
     found = _Column()
     dynamic_streak = _Column()
     missed_streak = _Column()
+    moving_frame = _Column()
     first_keyframe = _Column()
     n_observers = _Column()
     alive = _Column()
@@ -100,6 +106,7 @@ class Landmarks:
             "found": ((), np.int64, 0),
             "dynamic_streak": ((), np.int64, 0),
             "missed_streak": ((), np.int64, 0),
+            "moving_frame": ((), np.int64, NEVER_MOVING),
             "first_keyframe": ((), np.int64, -1),
             "n_observers": ((), np.int64, 0),
             "alive": ((), np.bool_, False),

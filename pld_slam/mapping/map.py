@@ -150,6 +150,7 @@ class Map:
         kind.found[new] += kind.found[old]
         kind.visible[new] += kind.visible[old]
         kind.dynamic_streak[new] = max(kind.dynamic_streak[new], kind.dynamic_streak[old])
+        kind.moving_frame[new] = max(kind.moving_frame[new], kind.moving_frame[old])
         kind.observers[old] = {}
         kind.n_observers[old] = 0
         kind.alive[old] = False
