@@ -337,7 +337,8 @@ class MappingConfig:
         "removed (0: never)", 0
     )
     see_through: bool = _param(
-        True, "a point landmark missed where the stereo pair sees a farther surface counts toward its dynamic streak"
+        True, "a point landmark missed where the stereo pair sees a farther surface, or found by a keypoint without a "
+        "stereo match where the pair shows another depth, counts toward its dynamic streak"
     )
 
 

@@ -11,6 +11,7 @@ from pld_slam.tracking.see_through import (
     MARGIN_PX,
     MATCH_RATIO,
     SEARCH_REACH,
+    landmarks_found_at_another_depth,
     landmarks_seen_through,
     shows_farther_surface,
 )
@@ -159,3 +160,35 @@ def test_a_farther_match_does_not_count_when_a_nearer_shift_matches_better(neare
         right[v - h : v + h + 1, u - 24 - h : u - 24 + h + 1] = window
     left, right = as_images(left, right)
     assert shows_farther_surface(left, right, np.array([u]), np.array([v]), np.array([20.0])).tolist() == [shown]
+
+
+def test_a_landmark_found_where_the_pair_shows_another_depth_nearer_or_farther_is_flagged():
+    left, right = pair_with_wall()
+    rng = np.random.default_rng(3)
+    paste(left, right, texture(rng, (60, 60)), 100, 300, depth=8.0)  # a box 2.5 x nearer than the wall
+    left[50:110, 300:360] = right[50:110, 290:350] = 128.0  # a flat patch of the wall
+    found = np.array([
+        [400, 100, WALL_DEPTH],  # 0: on the wall, at the wall's depth
+        [200, 100, 12.0],  # 1: on the wall, mapped 8 m in front of it: the pair shows it farther
+        [130, 330, WALL_DEPTH],  # 2: on the box, mapped at the wall behind it: the pair shows it nearer
+        [130, 330, 8.0],  # 3: on the box, at the box's depth
+        [330, 80, 12.0],  # 4: on the flat patch: matches everywhere alike, no evidence
+        [250, 200, -5.0],  # 5: behind the camera: not tested
+    ])
+    ids = np.arange(20, 20 + len(found))
+    p_c = np.array([at_pixel(u, v, depth) for u, v, depth in found])
+    flagged = landmarks_found_at_another_depth(CAMERA, ids, found[:, :2], p_c, *as_images(left, right))
+    assert flagged.tolist() == [ids[1], ids[2]]
+
+
+@pytest.mark.parametrize("share", [0.5 * DEPTH_TOLERANCE, 2.0 * DEPTH_TOLERANCE])
+@pytest.mark.parametrize("side", [-1.0, 1.0])
+def test_another_depth_must_differ_by_more_than_the_depth_tolerance_on_either_side(share, side):
+    left, right = pair_with_wall()
+    wall = CAMERA.bf / WALL_DEPTH
+    # The landmark's disparity is the wall's moved by `share` of it plus the margin, to either side.
+    disparity = wall * (1.0 + share) + MARGIN_PX if side > 0 else (wall - MARGIN_PX) / (1.0 + share)
+    p_c = at_pixel(320, 240, CAMERA.bf / disparity)[None]
+    flagged = landmarks_found_at_another_depth(CAMERA, np.array([7]), np.array([[320.0, 240.0]]), p_c,
+                                               *as_images(left, right))
+    assert len(flagged) == (share > DEPTH_TOLERANCE)

@@ -86,7 +86,7 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
-from pld_slam.tracking.see_through import landmarks_seen_through
+from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
 from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 
 
@@ -230,8 +230,9 @@ class Tracker:
         out of the robust solve from the start, so that movers a solve would follow cannot
         pull it (the upper bound of the detectors must not share their failure).
         ``images``, the rectified (left, right) pair (H, W) uint8 the features come from,
-        lets the map's missed points be tested for being seen through
-        (`pld_slam.tracking.see_through`, ``mapping.see_through``).
+        lets the map's missed points be tested for being seen through, and those found by a
+        keypoint without a stereo match for another depth (`pld_slam.tracking.see_through`,
+        ``mapping.see_through``).
         """
         if self._reference is None:
             return self._first_frame(features, moving_mask)
@@ -288,7 +289,7 @@ class Tracker:
             if self._map_tracked(map_tracking):
                 T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
                 if images is not None and self._config.mapping.see_through:
-                    map_tracking = self._with_seen_through(map_tracking, *images)
+                    map_tracking = self._with_stereo_evidence(map_tracking, features, *images)
             clock.lap("see_through")
             counts = dataclasses.replace(
                 counts,
@@ -357,12 +358,20 @@ class Tracker:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
         return map_tracking.solution.success and map_tracking.tracked_landmarks >= self._config.tracking.min_inliers
 
-    def _with_seen_through(self, map_tracking: LocalMapTracking, left: np.ndarray, right: np.ndarray
-                           ) -> LocalMapTracking:
-        """``map_tracking`` with the local map's points the pair sees through among its dynamic ones."""
+    def _with_stereo_evidence(self, map_tracking: LocalMapTracking, features: StereoFeatures, left: np.ndarray,
+                              right: np.ndarray) -> LocalMapTracking:
+        """``map_tracking`` with, among its dynamic point landmarks, the missed ones the pair sees through and
+        the ones found by a keypoint without a stereo match where the pair shows another depth
+        (`pld_slam.tracking.see_through`)."""
         seen_through = landmarks_seen_through(self._camera, map_tracking.missed, left, right)
+        mono = np.flatnonzero(map_tracking.point_ids >= 0)
+        mono = mono[mono >= features.keypoints.n_stereo]
+        ids = map_tracking.point_ids[mono]
+        p_c = transform_points(map_tracking.solution.T_c_w, self._map.points.geometry[ids])
+        elsewhere = landmarks_found_at_another_depth(self._camera, ids, features.keypoints.uv[mono], p_c, left, right)
         return dataclasses.replace(
-            map_tracking, dynamic_point_ids=np.union1d(map_tracking.dynamic_point_ids, seen_through)
+            map_tracking, dynamic_point_ids=np.union1d(map_tracking.dynamic_point_ids,
+                                                       np.union1d(seen_through, elsewhere))
         )
 
     def _tracks_few(self, map_tracking: LocalMapTracking) -> bool:
