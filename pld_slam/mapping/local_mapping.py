@@ -46,8 +46,9 @@ a method below:
    without the memory and with it. Means over seeds 0-2, both
    detectors, without and with: convoy 0.072 / 0.071 m, crossing 0.013 / 0.014, dynamic
    0.047 / 0.048, static 0.031 / 0.032; KITTI 06 0.0246 / 0.0251, raw 0005 0.0887 / 0.0885.
-   What is left there (seeds 5, 6 and 11 traced) is phantoms: landmarks made on a car at
-   a wrong depth (8-9 m in front of it, or 8 m behind its side), still found in a few frames.
+   What was left then (seeds 5, 6 and 11 traced) were phantoms: landmarks made on a car at
+   a wrong depth, still found in a few frames (`pld_slam.tracking.see_through`, "Found at
+   another depth", takes seeds 0-5 to 0).
    A landmark of any age in view that tracking misses in ``mapping.max_missed_frames`` (10)
    frames, with no find in between, dies too: a point in front of the camera and inside the
    image, beyond its search range or not (the range bounds where its descriptor matches, not
