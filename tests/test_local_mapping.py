@@ -198,6 +198,23 @@ def test_the_neighbour_search_adds_the_observations_tracking_missed():
 # --- culling recent landmarks ---------------------------------------------------------
 
 
+def mapping_with_old_landmarks(config: Config, points=(), lines=()) -> LocalMapping:
+    """A local mapping whose first keyframe made landmarks of ``points`` and ``lines``, followed by three empty
+    keyframes: the landmarks are no longer recent, so only the rules for landmarks of any age can remove them."""
+    mapping = local_mapping(config)
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=points, lines=lines))
+    for _ in range(3):
+        mapping.insert_keyframe(empty_keyframe(mapping))
+    return mapping
+
+
+def sighted(sightings: dict[str, list[str]], frame: int, marks: str) -> tuple[np.ndarray, np.ndarray]:
+    """(point ids, line ids) whose sighting in ``frame`` is one of ``marks``; ``sightings`` holds one string per
+    landmark of each kind ("points", "lines"), a character per frame."""
+    return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] in marks], dtype=np.int64)
+                 for kind in ("points", "lines"))
+
+
 def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_should_see_it_is_culled():
     mapping = local_mapping()
     mapping.insert_keyframe(keyframe_seeing(mapping, points=range(4)))
@@ -261,10 +278,7 @@ def test_the_observation_weight_is_judged_two_keyframes_after_creation_not_one()
 
 
 def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
-    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=0))
-    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(2)))
-    for _ in range(3):
-        mapping.insert_keyframe(empty_keyframe(mapping))
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=0), points=range(2))
     nothing = np.zeros(0, dtype=np.int64)
     for _ in range(10):  # visible, never found: would be culled if still recent
         mapping.record_tracking(
@@ -276,10 +290,8 @@ def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
 
 
 def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_removed():
-    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=0))
-    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5), lines=range(2)))
-    for _ in range(3):  # the landmarks are no longer recent: only the dynamic rule can remove them
-        mapping.insert_keyframe(empty_keyframe(mapping))
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=0),
+                                         points=range(5), lines=range(2))
     # What tracking saw of each point, frame by frame: found static (F), seen moving (M), or neither (-).
     # A parked car found for long, then moving (0); moving twice, found in between (1); moving twice
     # with a miss between (2); moving once (3); found throughout (4).
@@ -301,24 +313,16 @@ def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_
 
 
 def test_a_find_soon_after_a_landmark_was_seen_moving_does_not_end_its_dynamic_streak():
-    mapping = local_mapping(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=3))
-    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(3), lines=range(1)))
-    for _ in range(3):
-        mapping.insert_keyframe(empty_keyframe(mapping))
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, dynamic_streak=2, dynamic_memory=3),
+                                         points=range(3), lines=range(1))
     # Seen moving (M), found static (F), neither (-). A slow mover found in the 3 frames after it was
     # seen moving, then seen moving again (point 0, line 0); found 4 frames after, which clears the
     # streak (point 1); found throughout (point 2).
     sightings = {"points": ["MFFM--", "MFFFFM", "FFFFFF"], "lines": ["MFFM--"]}
-
-    def marked(frame: int, mark: str) -> tuple[np.ndarray, np.ndarray]:
-        """(point ids, line ids) whose sighting in ``frame`` is ``mark``."""
-        return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] == mark], dtype=np.int64)
-                     for kind in ("points", "lines"))
-
     nothing = np.zeros(0, dtype=np.int64)
     for frame in range(6):
-        mapping.record_tracking(visible=marked(frame, "F"), found=marked(frame, "F"), missed=(nothing, nothing),
-                                dynamic=marked(frame, "M"))
+        mapping.record_tracking(visible=sighted(sightings, frame, "F"), found=sighted(sightings, frame, "F"),
+                                missed=(nothing, nothing), dynamic=sighted(sightings, frame, "M"))
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
     assert mapping.map.points.alive.tolist() == [False, True, True]
     assert mapping.map.lines.alive.tolist() == [False]
@@ -328,25 +332,17 @@ def test_a_find_soon_after_a_landmark_was_seen_moving_does_not_end_its_dynamic_s
 
 
 def test_a_landmark_of_any_age_missed_in_max_missed_frames_tracked_frames_in_a_row_is_removed():
-    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=4))
-    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(4), lines=range(2)))
-    for _ in range(3):  # the landmarks are no longer recent: the found ratio no longer judges them
-        mapping.insert_keyframe(empty_keyframe(mapping))
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=4),
+                                         points=range(4), lines=range(2))
     # What tracking did with each landmark, frame by frame: found (F), missed in view (x), or
     # neither, out of view (-). Four misses in a row (point 0, line 0); four misses broken by a find
     # (point 1); four misses with frames out of view between them, which count for nothing (point 2);
     # found throughout (point 3).
     sightings = {"points": ["FFxxxx", "xxFxxx", "xx--xx", "FFFFFF"], "lines": ["FFxxxx", "FFFFFF"]}
     nothing = np.zeros(0, dtype=np.int64)
-
-    def marked(frame: int, marks: str) -> tuple[np.ndarray, np.ndarray]:
-        """(point ids, line ids) whose sighting in ``frame`` is one of ``marks``."""
-        return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] in marks], dtype=np.int64)
-                     for kind in ("points", "lines"))
-
     for frame in range(6):
-        mapping.record_tracking(visible=marked(frame, "Fx"), found=marked(frame, "F"), missed=marked(frame, "x"),
-                                dynamic=(nothing, nothing))
+        mapping.record_tracking(visible=sighted(sightings, frame, "Fx"), found=sighted(sightings, frame, "F"),
+                                missed=sighted(sightings, frame, "x"), dynamic=(nothing, nothing))
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
     assert mapping.map.points.alive.tolist() == [False, True, False, True]
     assert mapping.map.lines.alive.tolist() == [False, True]
@@ -356,10 +352,7 @@ def test_a_landmark_of_any_age_missed_in_max_missed_frames_tracked_frames_in_a_r
 
 
 def test_max_missed_frames_zero_never_removes_a_missed_landmark():
-    mapping = local_mapping(config_with(min_observation_weight=1, max_missed_frames=0))
-    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(2)))
-    for _ in range(3):
-        mapping.insert_keyframe(empty_keyframe(mapping))
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=0), points=range(2))
     nothing = np.zeros(0, dtype=np.int64)
     for _ in range(50):
         mapping.record_tracking(visible=(nothing, nothing), found=(nothing, nothing), missed=(np.array([0]), nothing),
