@@ -20,7 +20,8 @@ Sections (``--section``, all by default):
   when found through ``$PLD_SLAM_DATA``; the detection ms there is the cost per KITTI frame.
 - ``parked``: synthetic ``parked_then_moving`` on ``--seeds`` with both detectors: the
   landmarks each parked car gave the map before it pulled out, and how many of them are
-  still alive at the 5th keyframe after it started moving (figure: none); also those
+  still alive at the 5th keyframe after it started moving (figure: none), and of those the
+  ones no keyframe since the start had in view (nothing could see them leave); also those
   made on it while it moved (features the detectors missed) that local mapping has had
   time to judge and still keeps. A landmark
   belongs to the object whose surface its creating feature lay on (the renderer's object
@@ -44,7 +45,7 @@ import pandas as pd
 from extracts import existing_extracts
 
 from pld_slam.datasets import StereoSequence, open_sequence
-from pld_slam.eval.mover_landmarks import MoverLandmarks
+from pld_slam.eval.mover_landmarks import GROUPS, MoverLandmarks
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.run_config import load_run_config
 from pld_slam.synth.scenarios import DEFAULT_FRAMES, build_scenario
@@ -185,7 +186,7 @@ def parked_run(folder: Path, seed: int, extra: tuple[str, ...]) -> list[dict]:
     system = System(sequence, load_run_config(sequence, overrides=extra + VARIANTS["both"]).config,
                     record_observer=on_record)
     system.run()
-    return [dict(row, sequence=sequence.name) for row in watch.rows()]
+    return [{"seed": seed} | row for row in watch.rows()]
 
 
 def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
@@ -200,7 +201,7 @@ def parked(out: Path, seeds: list[int], extra: tuple[str, ...]) -> None:
           f"{KEYFRAMES_AFTER_START} keyframes after it started (NaN: the run ended first)")
     print(table.to_string(index=False), flush=True)
     print(f"landmarks made on the cars that pulled out: {int(table[['points made', 'lines made']].to_numpy().sum())}")
-    for group in ("at rest", "moving"):
+    for group in GROUPS:
         alive = int(np.nansum(table.filter(like=f"made {group}, alive").to_numpy(dtype=float)))
         print(f"made {group}, alive at KF+{KEYFRAMES_AFTER_START}: {alive}")
 

@@ -91,8 +91,27 @@ def test_landmarks_of_a_mover_are_counted_by_when_they_were_made():
     watch.keyframes_seen = 5  # landmark 2 (rank 3) is judged, landmark 3 (rank 4) not yet
     alive = np.array([True, False, True, True, True])
     world_map = SimpleNamespace(kinds=(SimpleNamespace(alive=alive), SimpleNamespace(alive=np.zeros(0, bool))))
-    assert watch.alive_by_group(world_map, mover, start) == {"at rest": (1, 0), "moving": (1, 0)}
+    # no keyframe since the start had landmark 0 in view (none was noted)
+    assert watch.alive_by_group(world_map, mover, start) == {"at rest": (1, 0), "at rest, out of view": (1, 0),
+                                                             "moving": (1, 0)}
     assert watch.made_on(mover) == (4, 0)
+
+
+def test_landmarks_made_at_rest_that_no_keyframe_saw_since_the_start_are_counted_apart():
+    """Of two alive landmarks made at rest, the one behind the keyframe after the start is
+    out of view; it still counts among those alive."""
+    world = build_scenario("parked_then_moving", 40, (160, 120), seed=0)
+    watch = MoverLandmarks(world)
+    mover, start = next(iter(watch.starts.items()))
+    for landmark in (0, 1):
+        watch.made[0][landmark] = LandmarkOrigin(mover, start - 5, 1)
+    positions = np.array([[0.0, 0.0, 10.0], [0.0, 0.0, -10.0]])  # in front of the camera, behind it
+    points = SimpleNamespace(alive=np.array([True, True]), centres=lambda ids: positions[ids])
+    no_lines = SimpleNamespace(alive=np.zeros(0, bool), centres=lambda ids: np.zeros((len(ids), 3)))
+    world_map = SimpleNamespace(kinds=(points, no_lines))
+    watch.note_in_view(world_map, SimpleNamespace(T_c_w=np.eye(4)), mover, start)
+    alive = watch.alive_by_group(world_map, mover, start)
+    assert alive["at rest"] == (2, 0) and alive["at rest, out of view"] == (1, 0), alive
 
 
 def parked_car_landmarks(folder, seed: int, overrides: tuple[str, ...] = ()) -> tuple[int, int | None]:

@@ -14,18 +14,29 @@ after it started come from features the detectors missed; local mapping judges a
 landmark over the keyframes after its creation (`pld_slam.mapping.local_mapping`, step 2),
 so only those at least `JUDGEMENT_AGE` keyframes old at the count are counted, the
 newest not being judged yet.
+
+Of the landmarks made at rest and alive at the count, those that no keyframe since the
+object started had in view (in front of the camera, projecting inside its image) are
+counted again apart: the camera had passed them before the object moved, so nothing in
+any frame could tell that they left. They stay in the first count; the second says how
+many of it no method could have removed.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
 from pld_slam.mapping.local_mapping import JUDGEMENT_AGE
 from pld_slam.mapping.map import Map
 from pld_slam.synth.scenarios import Scenario
+
+GROUPS = ("at rest", "at rest, out of view", "moving")
+"""The groups of `MoverLandmarks.rows`: made at rest; of those, in no keyframe's view since the
+object started; made while it moved (module docstring)."""
 
 
 def start_frames(world: Scenario) -> dict[int, int]:
@@ -91,6 +102,7 @@ class MoverLandmarks:
     starts: dict[int, int] = field(init=False)
     keyframes_since_start: dict[int, int] = field(init=False)
     alive_after: dict[int, dict[str, tuple[int, int]]] = field(init=False, default_factory=dict)
+    in_view_since_start: dict[int, tuple[set[int], set[int]]] = field(init=False, default_factory=dict)
     rendered: dict[int, np.ndarray] = field(init=False, default_factory=dict)
     keyframes_seen: int = field(init=False, default=0)
 
@@ -111,9 +123,24 @@ class MoverLandmarks:
         for mover, start in self.starts.items():
             if frame < start or mover in self.alive_after:
                 continue
+            self.note_in_view(world_map, world_map.keyframes[keyframe_id], mover, start)
             self.keyframes_since_start[mover] += 1
             if self.keyframes_since_start[mover] == self.keyframes_after:
                 self.alive_after[mover] = self.alive_by_group(world_map, mover, start)
+
+    def note_in_view(self, world_map: Map, keyframe: KeyFrame, mover: int, start: int) -> None:
+        """Add the alive points and lines of ``mover`` made at rest (before frame ``start``) that
+        ``keyframe`` has in view (a point, a line's midpoint, in front of the camera and inside
+        its image) to ``in_view_since_start[mover]``."""
+        camera = self.world.camera
+        seen_by_kind = self.in_view_since_start.setdefault(mover, (set(), set()))
+        for kind, made, seen in zip(world_map.kinds, self.made, seen_by_kind):
+            ids = np.array([landmark for landmark, m in made.items()
+                            if m.owner == mover and m.frame < start and kind.alive[landmark]], dtype=np.int64)
+            p_c = transform_points(keyframe.T_c_w, kind.centres(ids))
+            in_front = p_c[:, 2] > 0
+            in_view = in_front & camera.inside_image(camera.project(np.where(in_front[:, None], p_c, 1.0)))
+            seen.update(ids[in_view].tolist())
 
     def object_ids(self, frame: int) -> np.ndarray:
         """The renderer's object id of every left pixel (H, W) of ``frame`` (rendered once)."""
@@ -128,18 +155,26 @@ class MoverLandmarks:
 
     def alive_by_group(self, world_map: Map, mover: int, start: int) -> dict[str, tuple[int, int]]:
         """Points and lines of ``mover`` (which started at frame ``start``) alive now: those made
-        at rest, and those made while it moved that are at least `JUDGEMENT_AGE` keyframes old."""
+        at rest, of those the ones no keyframe since ``start`` had in view (`note_in_view`), and
+        those made while it moved that are at least `JUDGEMENT_AGE` keyframes old."""
         judged = self.keyframes_seen - JUDGEMENT_AGE
+
+        def at_rest(m: LandmarkOrigin) -> bool:
+            return m.owner == mover and m.frame < start
+
         return {
-            "at rest": self.alive(world_map, lambda m: m.owner == mover and m.frame < start),
+            "at rest": self.alive(world_map, at_rest),
+            "at rest, out of view": self.alive(world_map, at_rest, self.in_view_since_start.get(mover, (set(), set()))),
             "moving": self.alive(world_map, lambda m: m.owner == mover and m.frame >= start and m.rank <= judged),
         }
 
-    def alive(self, world_map: Map, chosen: Callable[[LandmarkOrigin], bool]) -> tuple[int, int]:
-        """Points and lines alive in ``world_map`` now among those whose `LandmarkOrigin` is ``chosen``."""
+    def alive(self, world_map: Map, chosen: Callable[[LandmarkOrigin], bool],
+              left_out: tuple[Collection[int], Collection[int]] = ((), ())) -> tuple[int, int]:
+        """Points and lines alive in ``world_map`` now among those whose `LandmarkOrigin` is ``chosen``,
+        but for the points and lines ``left_out``."""
         points, lines = (
-            sum(bool(kind.alive[landmark]) for landmark, m in made.items() if chosen(m))
-            for kind, made in zip(world_map.kinds, self.made)
+            sum(bool(kind.alive[landmark]) for landmark, m in made.items() if chosen(m) and landmark not in out)
+            for kind, made, out in zip(world_map.kinds, self.made, left_out)
         )
         return points, lines
 
@@ -150,7 +185,7 @@ class MoverLandmarks:
         for mover, start in self.starts.items():
             made = self.made_on(mover)
             row = {"object": mover, "starts at frame": start, "points made": made[0], "lines made": made[1]}
-            for group in ("at rest", "moving"):
+            for group in GROUPS:
                 alive = self.alive_after.get(mover, {}).get(group, (None, None))
                 row[f"points made {group}, alive at {after}"] = alive[0]
                 row[f"lines made {group}, alive at {after}"] = alive[1]
