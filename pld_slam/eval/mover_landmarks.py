@@ -24,15 +24,16 @@ many of it no method could have removed.
 
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
-from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
 from pld_slam.mapping.local_mapping import JUDGEMENT_AGE
 from pld_slam.mapping.map import Map
 from pld_slam.synth.scenarios import Scenario
+from pld_slam.tracking.local_map import points_in_view
 
 GROUPS = ("at rest", "at rest, out of view", "moving")
 """The groups of `MoverLandmarks.rows`: made at rest; of those, in no keyframe's view since the
@@ -83,6 +84,10 @@ class LandmarkOrigin:
     frame: int
     rank: int
 
+    def at_rest_on(self, mover: int, start: int) -> bool:
+        """Whether the landmark was made on ``mover`` before it started moving at frame ``start``."""
+        return self.owner == mover and self.frame < start
+
 
 @dataclass
 class MoverLandmarks:
@@ -130,17 +135,13 @@ class MoverLandmarks:
 
     def note_in_view(self, world_map: Map, keyframe: KeyFrame, mover: int, start: int) -> None:
         """Add the alive points and lines of ``mover`` made at rest (before frame ``start``) that
-        ``keyframe`` has in view (a point, a line's midpoint, in front of the camera and inside
-        its image) to ``in_view_since_start[mover]``."""
-        camera = self.world.camera
+        ``keyframe`` has in view (a point, a line's midpoint: `points_in_view`) to
+        ``in_view_since_start[mover]``."""
         seen_by_kind = self.in_view_since_start.setdefault(mover, (set(), set()))
         for kind, made, seen in zip(world_map.kinds, self.made, seen_by_kind):
             ids = np.array([landmark for landmark, m in made.items()
-                            if m.owner == mover and m.frame < start and kind.alive[landmark]], dtype=np.int64)
-            p_c = transform_points(keyframe.T_c_w, kind.centres(ids))
-            in_front = p_c[:, 2] > 0
-            in_view = in_front & camera.inside_image(camera.project(np.where(in_front[:, None], p_c, 1.0)))
-            seen.update(ids[in_view].tolist())
+                            if m.at_rest_on(mover, start) and kind.alive[landmark]], dtype=np.int64)
+            seen.update(ids[points_in_view(self.world.camera, keyframe.T_c_w, kind.centres(ids))[2]].tolist())
 
     def object_ids(self, frame: int) -> np.ndarray:
         """The renderer's object id of every left pixel (H, W) of ``frame`` (rendered once)."""
@@ -158,10 +159,7 @@ class MoverLandmarks:
         at rest, of those the ones no keyframe since ``start`` had in view (`note_in_view`), and
         those made while it moved that are at least `JUDGEMENT_AGE` keyframes old."""
         judged = self.keyframes_seen - JUDGEMENT_AGE
-
-        def at_rest(m: LandmarkOrigin) -> bool:
-            return m.owner == mover and m.frame < start
-
+        at_rest = partial(LandmarkOrigin.at_rest_on, mover=mover, start=start)
         return {
             "at rest": self.alive(world_map, at_rest),
             "at rest, out of view": self.alive(world_map, at_rest, self.in_view_since_start.get(mover, (set(), set()))),

@@ -489,10 +489,19 @@ def missed_in_image(
 ) -> MissedPoints:
     """The point landmarks of ``points`` a frame at ``T_c_w`` (4, 4) missed, ``found`` (K,) holding
     the ids its solve found (`MissedPoints`)."""
-    p_c = transform_points(T_c_w, points.geometry)
+    p_c, uv, in_view = points_in_view(camera, T_c_w, points.geometry)
+    return MissedPoints(points.ids, p_c, uv, in_view & ~np.isin(points.ids, found))
+
+
+def points_in_view(camera: StereoCamera, T_c_w: np.ndarray, p_w: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World points ``p_w`` (N, 3) seen from a camera at ``T_c_w`` (4, 4): in the camera frame (N, 3),
+    their pixels (N, 2) (those behind the camera at the principal point), and which lie in view (N,)
+    bool: deeper than `_MIN_DEPTH` and projecting inside the image."""
+    p_c = transform_points(T_c_w, p_w)
     in_front = p_c[:, 2] > _MIN_DEPTH
     uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
-    return MissedPoints(points.ids, p_c, uv, in_front & camera.inside_image(uv) & ~np.isin(points.ids, found))
+    return p_c, uv, in_front & camera.inside_image(uv)
 
 
 @dataclass(frozen=True)
