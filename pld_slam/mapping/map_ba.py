@@ -34,6 +34,7 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.optim.bundle_adjustment import (
+    TO_CONVERGENCE,
     BundleLineObservations,
     BundleOptions,
     BundlePointObservations,
@@ -80,10 +81,13 @@ class _Observations:
 
 
 def adjust_keyframes(
-    world_map: Map, free: list[int], camera: StereoCamera, config: Config, max_nfev: int
+    world_map: Map, free: list[int], camera: StereoCamera, config: Config, max_nfev: int,
+    to_convergence: bool = False,
 ) -> BaReport | None:
     """Bundle-adjust keyframes ``free`` (ids) and their landmarks, write the result into ``world_map``
-    (module docstring); None with nothing to adjust. ``max_nfev``: evaluations per solve."""
+    (module docstring); None with nothing to adjust. ``max_nfev``: evaluations per solve;
+    ``to_convergence``: solve with `pld_slam.optim.bundle_adjustment.TO_CONVERGENCE`
+    instead of refining as local BA does."""
     start = time.perf_counter()
     point_ids = _landmarks_of(world_map, world_map.points, free)
     line_ids = _landmarks_of(world_map, world_map.lines, free)
@@ -107,6 +111,7 @@ def adjust_keyframes(
         use_line_vertical=config.lines.vertical_error,
         use_line_horizontal=config.lines.horizontal_error,
         max_nfev=max_nfev,
+        **(TO_CONVERGENCE if to_convergence else {}),
     )
     result = bundle_adjust(camera, problem, options)
     for index in np.flatnonzero(~fixed).tolist():
