@@ -20,9 +20,9 @@ frame through its reference keyframe) of the run and of both solves, the solves'
 evaluations and final cost (robust-round inliers, whitened), and the end pose's rotation
 error (x right: pitch, z forward: roll).
 
-Sequences: the KITTI extracts found in ``$PLD_SLAM_DATA`` (default ``../shared/data``; a
-ground-truth pose per frame is needed, which EuRoC's sampling does not give) and the
-synthetic ``--scenarios`` for each of ``--seeds``.
+Sequences: the real extracts found in ``$PLD_SLAM_DATA`` (default ``../shared/data``)
+whose ground truth has a pose per frame (all of them: the EuRoC loader gives each frame
+its ground-truth pose), and the synthetic ``--scenarios`` for each of ``--seeds``.
 
     python benchmarks/ba_truth.py [--scenarios static loop] [--seeds 0 1 2] [--frames 300]
                                   [--no-real] [--out /tmp/pld_slam_ba_truth] [--set KEY=VALUE ...]
@@ -98,9 +98,10 @@ def truth_row(label: str, sequence: StereoSequence, overrides: tuple[str, ...]) 
 
 
 def sequences(args: argparse.Namespace) -> dict[str, StereoSequence]:
-    """The KITTI extracts (unless ``--no-real``) and the synthetic sequences asked for, by name."""
+    """The real extracts with a true pose per frame (unless ``--no-real``) and the synthetic sequences asked
+    for, by name."""
     real = [] if args.no_real else real_sequences()
-    found = {s.name: s for s in real if len(s.groundtruth.poses) == len(s)}
+    found = {s.name: s for s in real if s.groundtruth is not None and len(s.groundtruth.poses) == len(s)}
     for scenario in args.scenarios:
         for seed in args.seeds:
             frames = args.frames if scenario == "static" else DEFAULT_FRAMES[scenario]

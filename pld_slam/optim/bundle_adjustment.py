@@ -98,8 +98,8 @@ TO_CONVERGENCE = dict(ftol=1e-6, lsmr_max_iterations=100)
 """`BundleOptions` fields that solve a problem to its optimum instead of refining it. The drift
 of a long trajectory is a problem's flattest direction, and steps of `_LSMR_MAX_ITERATIONS`
 stopped at a `_FTOL` gain leave it nearly untouched: every keyframe of the 300-frame synthetic
-street (seed 1) bundle-adjusted from the run's poses stopped after 4 evaluations with the end
-pose's pitch error unchanged (-0.446 deg); with these, after 22, at -0.368 deg
+street (seed 1) bundle-adjusted from the run's poses stopped after 4 evaluations with the last
+pose's pitch error unchanged (0.45 deg); with these, after 22, at 0.37 deg
 (`benchmarks/ba_truth.py` solves this way)."""
 
 
