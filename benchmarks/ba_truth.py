@@ -73,9 +73,10 @@ def adjusted_copy(result: RunResult, sequence: StereoSequence, config: Config, f
     return dataclasses.replace(result, map=world_map), report
 
 
-def end_rotation_error_deg(sequence: StereoSequence, result: RunResult) -> np.ndarray:
-    """Rotation error (3,) [deg] of the last frame relative to the first, as a rotation vector in its camera."""
-    estimate, truth = result.trajectory().poses, sequence.groundtruth.poses
+def end_rotation_error_deg(sequence: StereoSequence, estimate: np.ndarray) -> np.ndarray:
+    """Rotation error (3,) [deg] of the last of the ``estimate`` poses (N, 4, 4) ``T_w_c`` relative to the
+    first, as a rotation vector in its camera."""
+    truth = sequence.groundtruth.poses
     error = inverse(inverse(truth[0]) @ truth[-1]) @ inverse(estimate[0]) @ estimate[-1]
     return np.degrees(Rotation.from_matrix(error[:3, :3]).as_rotvec())
 
@@ -92,12 +93,13 @@ def truth_row(label: str, sequence: StereoSequence, overrides: tuple[str, ...]) 
     for name, from_truth in (("from run", False), ("from truth", True)):
         variants[name] = adjusted_copy(system.result, sequence, config, from_truth)
     for name, (result, report) in variants.items():
-        ate = evaluate(sequence.groundtruth, result.trajectory(), by_index=True).ate_rmse_m
+        trajectory = result.trajectory()
+        ate = evaluate(sequence.groundtruth, trajectory, by_index=True).ate_rmse_m
         row[f"ATE {name} [m]"] = ate
         if report is not None:
             row[f"nfev {name}"] = report.nfev
             row[f"cost {name}"] = report.final_cost
-        pitch, _, roll = end_rotation_error_deg(sequence, result)
+        pitch, _, roll = end_rotation_error_deg(sequence, trajectory.poses)
         row[f"end pitch/roll {name} [deg]"] = f"{pitch:+.3f}/{roll:+.3f}"
     return row
 

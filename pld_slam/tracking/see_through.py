@@ -106,7 +106,7 @@ def landmarks_seen_through(camera: StereoCamera, missed: MissedPoints, left: np.
 
 
 def _testable_windows(camera: StereoCamera, uv: np.ndarray, depth: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which landmarks at pixels ``uv`` (K, 2) and depths ``depth`` (K,) [m] can be tested (K,) bool: in front
     of the camera, their window inside both images at their disparity + 1; and of those, the whole
     pixel (u, v) int64 and the predicted disparity [px]."""
