@@ -18,7 +18,7 @@ Sections (``--section``, all by default), each printing one table:
   and among the fastest and the slowest third of the frames.
 - ``growth``: one long synthetic ``loop`` sequence (``--growth-frames``): mean ms per frame
   over frames 100-200 and over the last 100, their ratio (flat cost as the map grows), and
-  the peak memory of the run (its own process).
+  the peak memory of the run (its own process) and of its front-end process (`pld_slam.frame_extraction`).
 - ``determinism``: each real extract run twice: whether the trajectory files are the same bytes.
 
 Time only on an otherwise idle machine.
@@ -36,6 +36,7 @@ import argparse
 import multiprocessing
 import resource
 import tempfile
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -214,14 +215,15 @@ def growth_row(folder: Path, overrides: tuple[str, ...]) -> dict:
         "late / early": late / early,
         "ATE [m]": summary["ate_rmse_m"],
         "peak MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "front-end process peak MB": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0 or None,
     }
 
 
 def growth_rows(out: Path, n_frames: int, overrides: tuple[str, ...]) -> list[dict]:
     folder = out / f"loop_{n_frames}"
     write_sequence(folder, "loop", n_frames=n_frames, seed=0)
-    with multiprocessing.get_context("spawn").Pool(1) as pool:
-        return [pool.apply(growth_row, (folder, overrides))]
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return [pool.submit(growth_row, folder, overrides).result()]
 
 
 def determinism_rows(out: Path, overrides: tuple[str, ...]) -> list[dict]:

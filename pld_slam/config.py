@@ -36,8 +36,12 @@ class SystemConfig:
 
     seed: int = _param(0, "seed of every random choice (RANSAC, k-means): same seed, same output", 0)
     prefetch: bool = _param(
-        True, "read and extract the next frame in a background thread while this one is tracked and mapped "
+        True, "read and extract the next frames in the background while this one is tracked and mapped "
         "(same output, less wall time)"
+    )
+    prefetch_worker: Literal["process", "thread"] = _param(
+        "process", "where prefetch extracts: a forked child process (Linux, where forking is safe; else a thread) "
+        "or a thread"
     )
 
 

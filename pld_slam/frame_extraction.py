@@ -1,33 +1,74 @@
-"""A frame's images and features, read and extracted one frame ahead in a background thread.
+"""A frame's images and features, read and extracted a few frames ahead in a background worker.
 
 The front end has no state (`pld_slam.frontend`): a frame's features depend on its
 images and the configuration only. So while the main thread tracks and maps frame i,
-`FramePrefetcher` reads and extracts frame i + 1 in another thread, and the run gets the
-same features, bit for bit, in less wall time: on KITTI 06 (2 cores) the front end's
-50-55 ms per frame then mostly overlaps tracking and local mapping (the figures are in
-the mapping benchmark, ``benchmarks/mapping.py``). ``system.prefetch: false`` reads and
-extracts each frame when it is processed, for timing one stage at a time.
+`FramePrefetcher` reads and extracts the next frames in a background worker, and the run
+gets the same features, bit for bit, in less wall time. ``system.prefetch: false`` reads
+and extracts each frame when it is processed, for timing one stage at a time.
 
-Why a thread and one frame ahead: OpenCV's ORB, LSD and LBD and the numba kernels
-release the GIL, so the two threads share the two cores; a process would have to
-pickle every frame's features back, and more frames ahead would only hold more images
-in memory, since the main thread takes about as long per frame as the front end.
+The worker (``system.prefetch_worker``) is a forked child process by default, else a
+thread. A thread shares the GIL with tracking and mapping (OpenCV and the numba kernels
+release it, the Python between them does not), so on two cores the front end in a thread
+and the main thread slow each other down; a process has its own interpreter, and costs
+only the pickling of each frame's images and features (1.1 MB and 0.3 ms on KITTI). The
+figures are below.
 
-One reader at a time: a frame source may not be safe to read from two threads (a ROS
-bag reader is one file handle), so the main thread reads a frame itself only after the
-frame in flight, if any, is done.
+Forking is safe only in some places, and elsewhere the worker is a thread
+(`background_worker`):
+
+- the platform must be Linux: Windows cannot fork, and on macOS Apple's system libraries
+  (which OpenCV's threads use there) are not safe in a forked child, which is why Python
+  does not fork there by default;
+- the process must run one thread when it forks (tqdm's progress-bar monitor aside): a lock
+  that another thread holds at the fork (numba's compiler lock, a logging handler's) stays
+  locked forever in the child. So the child is forked when the prefetcher is made, before
+  the run starts any thread, and a program that runs several sequences in threads gets
+  threads;
+- the process must not be a daemon (a `multiprocessing.Pool` worker), which may not have
+  children;
+- the frame source must be readable from two processes (``FrameSource.forks_safely``):
+  files opened per read are; a ROS bag's open reader (one file offset, one SQLite
+  connection shared by the parent and the child) is not.
+
+The child ignores Ctrl-C (the parent stops the run and shuts it down) and is killed when
+the parent is (a time limit's kill: it would otherwise wait for work forever); a child that dies
+(killed, out of memory) costs nothing but speed: the frame it was extracting is extracted
+again in the caller's thread, and the rest of the run prefetches in a thread.
+
+Why `FRAMES_AHEAD` (3) frames ahead: the main thread's time per frame is uneven (a
+keyframe's local mapping and BA more than doubles it), and with one frame ahead the worker
+sat idle through a keyframe and the main thread then waited for it on the next frames. On
+KITTI 06 (2 cores, mean / median ms per frame, two interleaved runs each): process 1 frame
+ahead 103 / 86, 2 ahead 101 / 66, 3 ahead 91-93 / 58, 5 ahead 92 / 60; a thread 1 ahead
+106 / 85, 3 ahead 108 / 80; no prefetching 124-125 / 105-108. A frame in flight holds its
+images and features, about 1 MB on KITTI.
+
+One reader at a time: a frame source may not be safe to read from two threads at once,
+so the main thread reads a frame itself only after the frame in flight, if any, is done.
 """
 
-from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+from collections import deque
+from collections.abc import Callable, Iterable
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from typing import Literal
+
+from tqdm import tqdm
 
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.datasets.base import FrameSource
 from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.timing import StageClock
+from pld_slam.timing import StageClock, one_blas_thread
 
 
 @dataclass(frozen=True)
@@ -66,44 +107,119 @@ def extract_frame(sequence: StereoSequence, index: int, camera: StereoCamera, co
     return ExtractedFrame(index, frame, features, None, clock.laps)
 
 
+FRAMES_AHEAD = 3
+"""How many frames the worker extracts ahead of the one being processed (module docstring)."""
+
+BackgroundWorker = Literal["process", "thread"]
+"""Where `FramePrefetcher` extracts ahead (module docstring)."""
+
+
+def background_worker(requested: BackgroundWorker, source: FrameSource) -> BackgroundWorker:
+    """``requested``, unless it is a process and forking here is not safe (module docstring): then a thread."""
+    forks_safely = (sys.platform.startswith("linux") and not multiprocessing.current_process().daemon
+                    and _no_other_thread_runs() and source.forks_safely)
+    return "process" if requested == "process" and forks_safely else "thread"
+
+
+def _no_other_thread_runs() -> bool:
+    """Whether the calling thread is the only one, tqdm's monitor aside: a progress bar starts it
+    and it only ever takes tqdm's own lock, which the child does not use."""
+    others = [thread for thread in threading.enumerate()
+              if thread is not threading.current_thread() and thread is not tqdm.monitor]
+    return not others
+
+
 class FramePrefetcher:
-    """Hands out `ExtractedFrame`s, extracting the one asked next in a background thread (module docstring).
+    """Hands out `ExtractedFrame`s, extracting the frames asked next in a background worker (module docstring).
 
     ``extract`` reads and extracts one frame by index. Call `take` for the frame about to
-    be processed, then `prefetch` with the one that will follow; `close` when done.
-    Without ``enabled``, `prefetch` does nothing and `take` extracts in the caller's thread.
+    be processed, then `prefetch` with the ones that will follow; `close` when done.
+    ``worker`` is where `prefetch` extracts: a forked child process (forked here, see
+    `background_worker` for when that is safe), a thread, or nowhere (None: `prefetch`
+    does nothing and `take` extracts in the caller's thread). The worker extracts the
+    frames in the order asked, one at a time.
     """
 
-    def __init__(self, extract: Callable[[int], ExtractedFrame], enabled: bool = True) -> None:
+    def __init__(self, extract: Callable[[int], ExtractedFrame], worker: BackgroundWorker | None = "thread") -> None:
         self._extract = extract
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pld-slam-frontend") if enabled else None
-        self._pending: tuple[int, Future] | None = None
+        self._pending: deque[tuple[int, Future]] = deque()
+        self._executor: Executor | None = None
+        self._submit: Callable[[int], ExtractedFrame] = extract
+        if worker == "process":
+            self._executor = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                                 initializer=_become_extractor, initargs=(extract, os.getpid()))
+            self._submit = _extract_in_child
+            self._executor.submit(int).result()  # fork now, while this process runs one thread
+        elif worker == "thread":
+            self._executor = _frontend_thread()
 
     def take(self, index: int) -> ExtractedFrame:
-        """Frame ``index``: the one prefetched if it is that frame, else extracted now.
+        """Frame ``index``: the one prefetched if it is in flight, else extracted now.
 
-        An error other than an unreadable frame, raised while extracting in the
-        background, is raised here.
+        Frames in flight before it are dropped; when it is not in flight, all are
+        dropped, after they finish, before this thread reads (one reader at a time). An
+        error other than an unreadable frame, raised while extracting in the background,
+        is raised here.
         """
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending_index, future = pending
-            extracted = future.result()  # also waits for a frame in flight before this thread reads one
-            if pending_index == index:
+        while self._pending:
+            pending_index, future = self._pending.popleft()
+            extracted = self._result(future)
+            if pending_index == index and extracted is not None:
                 return extracted
         return self._extract(index)
 
-    def prefetch(self, index: int) -> None:
-        """Start extracting frame ``index`` in the background (nothing when prefetching is off)."""
-        if self._executor is not None:
-            if self._pending is not None:
-                self._pending[1].result()
-            self._pending = (index, self._executor.submit(self._extract, index))
+    def prefetch(self, indices: Iterable[int]) -> None:
+        """Start extracting frames ``indices`` in the background, in order, each not yet in flight
+        (nothing when prefetching is off)."""
+        if self._executor is None:
+            return
+        in_flight = {index for index, _ in self._pending}
+        for index in indices:
+            if index not in in_flight:
+                self._pending.append((index, self._executor.submit(self._submit, index)))
 
     def close(self) -> None:
-        """Drop the frame in flight, if any, and stop the background thread; `take` extracts in the
+        """Drop the frames in flight and stop the background worker; `take` extracts in the
         caller's thread from then on."""
-        self._pending = None
+        self._pending.clear()
         if self._executor is not None:
             self._executor.shutdown(wait=True, cancel_futures=True)
             self._executor = None
+
+    def _result(self, future: Future) -> ExtractedFrame | None:
+        """The frame extracted in the background; None when the child process died (module
+        docstring): then every frame in flight is dropped and the prefetcher goes on in a thread."""
+        try:
+            return future.result()
+        except BrokenProcessPool:
+            self._pending.clear()
+            self._executor.shutdown(wait=False)
+            self._executor, self._submit = _frontend_thread(), self._extract
+            return None
+
+
+def _frontend_thread() -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="pld-slam-frontend")
+
+
+PR_SET_PDEATHSIG = 1
+"""Linux's ``prctl`` option: the signal this process gets when its parent dies."""
+
+_child_extract: Callable[[int], ExtractedFrame] | None = None
+"""The child process's ``extract``, inherited through the fork (never pickled)."""
+
+
+def _become_extractor(extract: Callable[[int], ExtractedFrame], parent: int) -> None:
+    """Start of the forked child: keep ``extract``, leave Ctrl-C to the parent, and die with the
+    parent (process id ``parent``) when it is killed, instead of waiting for work forever."""
+    global _child_extract
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # killed before prctl
+        os._exit(1)
+    one_blas_thread()  # takes effect at once, for the child's life
+    _child_extract = extract
+
+
+def _extract_in_child(index: int) -> ExtractedFrame:
+    return _child_extract(index)

@@ -7,9 +7,10 @@ mapping work happens before the next frame is tracked. ``mapping.enabled: false`
 tracking alone, a visual odometry against the reference frame. Loop closure and the
 final global BA join here as they are built.
 
-With ``system.prefetch`` (the default), the next frame is read and its features extracted
-in a background thread while this one is tracked and mapped
-(`pld_slam.frame_extraction`); the output is the same.
+With ``system.prefetch`` (the default), the next frames are read and their features
+extracted in a background worker, a forked process where that is safe, while this one is
+tracked and mapped (`pld_slam.frame_extraction`); the output is the same. BLAS runs one
+thread while the system calibrates and runs (`pld_slam.timing.one_blas_thread`).
 
 Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
 spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
@@ -45,7 +46,7 @@ from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import ConfigError
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
-from pld_slam.frame_extraction import FramePrefetcher, extract_frame
+from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.se3 import inverse
 from pld_slam.keyframes import KeyframeReason
@@ -56,7 +57,7 @@ from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
-from pld_slam.timing import ms_since
+from pld_slam.timing import ms_since, one_blas_thread
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
@@ -69,7 +70,7 @@ points against the frame's stereo pair (`pld_slam.tracking.see_through`); ``mapp
 (keyframes only) the local mapping of a keyframe, local BA included; ``loop`` (keyframes
 only) its loop detection, verification and correction; ``total`` the frame's whole wall
 time in the main thread. With ``system.prefetch``, ``load`` and ``frontend`` ran in the
-background while the frame before was processed, and ``total`` holds only the wait for
+background while earlier frames were processed, and ``total`` holds only the wait for
 them, so the stages add up to more."""
 
 
@@ -116,7 +117,9 @@ class RunResult:
     ``map`` is the run's map (None without mapping); ``insertions`` what local mapping did
     at each keyframe; ``loop_closing`` the loop stage (its candidates and closed loops; None
     without one); ``global_ba`` the final global BA (None when it did not run);
-    ``disparity_offset`` the self-calibration before the run (None when switched off).
+    ``disparity_offset`` the self-calibration before the run (None when switched off);
+    ``frontend_worker`` where the next frame was extracted ahead: ``"process"``,
+    ``"thread"`` (`pld_slam.frame_extraction.background_worker`), or None without prefetching.
     """
 
     records: list[FrameRecord] = field(default_factory=list)
@@ -127,6 +130,7 @@ class RunResult:
     loop_closing: LoopClosing | None = None
     global_ba: BaReport | None = None
     disparity_offset: DisparityOffsetEstimate | None = None
+    frontend_worker: str | None = None
 
     def trajectory(self) -> Trajectory:
         """``T_w_c`` of every processed frame, through its reference keyframe's current pose where it has one."""
@@ -171,7 +175,8 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
-        self.camera, disparity_offset = calibrated_camera(sequence, config)
+        with one_blas_thread():
+            self.camera, disparity_offset = calibrated_camera(sequence, config)
         world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
         self.local_mapping = None if world_map is None else LocalMapping(world_map, self.camera, config)
         self.loop_closing = None
@@ -179,10 +184,12 @@ class System:
             self.loop_closing = LoopClosing(world_map, self.local_mapping, self.camera, config)
         self.tracker = Tracker(self.camera, config, world_map)
         with_ggs = self.local_mapping is not None
+        worker = background_worker(config.system.prefetch_worker, sequence.frames) if config.system.prefetch else None
         self._frames = FramePrefetcher(lambda index: extract_frame(sequence, index, self.camera, config, with_ggs),
-                                       enabled=config.system.prefetch)
+                                       worker)
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
-                                wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3)
+                                wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3,
+                                frontend_worker=worker)
         self._observer = observer
         self._record_observer = record_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
@@ -200,8 +207,7 @@ class System:
         start = time.perf_counter()
         timestamp = float(self.sequence.timestamps[index])
         extracted = self._frames.take(index)
-        if index + 1 < len(self.sequence):
-            self._frames.prefetch(index + 1)
+        self._frames.prefetch(range(index + 1, min(index + 1 + FRAMES_AHEAD, len(self.sequence))))
         if extracted.error is not None:
             error = extracted.error
             if not self._started:
@@ -302,9 +308,10 @@ class System:
         """
         n_frames = len(self.sequence) if max_frames is None else min(max_frames, len(self.sequence))
         try:
-            for index in progress(range(n_frames)):
-                self.process_frame(index)
-            self._finish()
+            with one_blas_thread():
+                for index in progress(range(n_frames)):
+                    self.process_frame(index)
+                self._finish()
         except KeyboardInterrupt:
             self.result.stop_reason = "interrupted"
             raise

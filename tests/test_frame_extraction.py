@@ -1,12 +1,23 @@
-"""`FramePrefetcher`: the next frame extracted in a background thread, one reader at a time."""
+"""`FramePrefetcher`: the next frame extracted in a background thread or forked process, one reader at a time."""
 
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
+from tqdm import tqdm
 
+from pld_slam.datasets.base import ImageFiles
+from pld_slam.datasets.rosbag import BagImages
 from pld_slam.errors import DatasetError
-from pld_slam.frame_extraction import ExtractedFrame, FramePrefetcher
+from pld_slam.frame_extraction import ExtractedFrame, FramePrefetcher, background_worker
+
+linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the front end forks only on Linux")
 
 
 class RecordingExtractor:
@@ -37,7 +48,7 @@ def test_the_prefetched_frame_is_extracted_in_the_background_and_handed_out_once
     extractor = RecordingExtractor()
     frames = FramePrefetcher(extractor)
     first = frames.take(0)
-    frames.prefetch(1)
+    frames.prefetch([1])
     second = frames.take(1)
     frames.close()
     assert (first.index, second.index) == (0, 1)
@@ -49,7 +60,7 @@ def test_the_prefetched_frame_is_extracted_in_the_background_and_handed_out_once
 def test_asking_for_another_frame_than_the_prefetched_one_extracts_it_after_the_one_in_flight():
     extractor = RecordingExtractor()
     frames = FramePrefetcher(extractor)
-    frames.prefetch(5)
+    frames.prefetch([5])
     assert frames.take(2).index == 2
     frames.close()
     assert [index for index, _ in extractor.calls] == [5, 2]
@@ -58,18 +69,18 @@ def test_asking_for_another_frame_than_the_prefetched_one_extracts_it_after_the_
 
 def test_without_prefetching_every_frame_is_extracted_in_the_callers_thread():
     extractor = RecordingExtractor()
-    frames = FramePrefetcher(extractor, enabled=False)
+    frames = FramePrefetcher(extractor, worker=None)
     for index in range(3):
         assert frames.take(index).index == index
-        frames.prefetch(index + 1)
+        frames.prefetch([index + 1])
     assert {thread for _, thread in extractor.calls} == {threading.current_thread().name}
 
 
 def test_an_unreadable_frame_is_handed_out_with_its_error_and_a_failure_is_raised_to_the_caller():
     frames = FramePrefetcher(RecordingExtractor(fail_at=2, unreadable_at=1))
-    frames.prefetch(1)
+    frames.prefetch([1])
     assert "frame 1 unreadable" in str(frames.take(1).error)
-    frames.prefetch(2)
+    frames.prefetch([2])
     with pytest.raises(ValueError, match="frame 2"):
         frames.take(2)
     frames.close()
@@ -78,8 +89,138 @@ def test_an_unreadable_frame_is_handed_out_with_its_error_and_a_failure_is_raise
 def test_after_close_frames_are_still_extracted_in_the_callers_thread():
     extractor = RecordingExtractor()
     frames = FramePrefetcher(extractor)
-    frames.prefetch(0)
+    frames.prefetch([0])
     frames.close()
-    frames.prefetch(1)
+    frames.prefetch([1])
     assert frames.take(1).index == 1
     assert extractor.calls[-1] == (1, threading.current_thread().name)
+
+
+# --- the forked worker -----------------------------------------------------------------
+
+
+class ProcessReporter:
+    """Extracts nothing but says which process extracted each frame (in ``stage_ms["pid"]``).
+
+    ``die_at``: a child asked for that frame exits at once, as one killed would.
+    """
+
+    def __init__(self, die_at: int | None = None, fail_at: int | None = None, unreadable_at: int | None = None) -> None:
+        self._parent = os.getpid()
+        self._die_at, self._fail_at, self._unreadable_at = die_at, fail_at, unreadable_at
+
+    def __call__(self, index: int) -> ExtractedFrame:
+        if index == self._die_at and os.getpid() != self._parent:
+            os._exit(1)
+        if index == self._fail_at:
+            raise ValueError(f"broken extraction of frame {index}")
+        error = DatasetError(f"frame {index} unreadable") if index == self._unreadable_at else None
+        return ExtractedFrame(index, None, None, error, {"pid": float(os.getpid())})
+
+
+def pid_of(extracted: ExtractedFrame) -> int:
+    return int(extracted.stage_ms["pid"])
+
+
+@linux_only
+def test_with_a_process_worker_prefetched_frames_are_extracted_in_one_forked_child():
+    frames = FramePrefetcher(ProcessReporter(), worker="process")
+    frames.prefetch([0])
+    first = frames.take(0)
+    frames.prefetch([1])
+    second = frames.take(1)
+    third = frames.take(7)  # not the one prefetched: extracted here
+    frames.close()
+    assert (first.index, second.index, third.index) == (0, 1, 7)
+    assert pid_of(first) == pid_of(second) != os.getpid()
+    assert pid_of(third) == os.getpid()
+
+
+@linux_only
+def test_errors_come_back_from_the_child_as_from_a_thread():
+    frames = FramePrefetcher(ProcessReporter(fail_at=2, unreadable_at=1), worker="process")
+    frames.prefetch([1])
+    unreadable = frames.take(1)
+    assert isinstance(unreadable.error, DatasetError) and "frame 1 unreadable" in str(unreadable.error)
+    frames.prefetch([2])
+    with pytest.raises(ValueError, match="frame 2"):
+        frames.take(2)
+    frames.close()
+
+
+@linux_only
+def test_a_child_that_dies_costs_only_the_background_its_frame_is_extracted_again_here():
+    frames = FramePrefetcher(ProcessReporter(die_at=2), worker="process")
+    frames.prefetch([1])
+    child = pid_of(frames.take(1))
+    frames.prefetch([2])
+    again = frames.take(2)
+    frames.prefetch([3])
+    after = frames.take(3)
+    frames.close()
+    assert child != os.getpid()
+    assert again.index == 2 and pid_of(again) == os.getpid()
+    assert after.index == 3 and pid_of(after) == os.getpid()  # a thread of this process from then on
+
+
+@linux_only
+def test_ctrl_c_is_left_to_the_parent_the_child_goes_on():
+    frames = FramePrefetcher(ProcessReporter(), worker="process")
+    frames.prefetch([0])
+    child = pid_of(frames.take(0))
+    os.kill(child, signal.SIGINT)
+    time.sleep(0.05)
+    frames.prefetch([1])
+    assert pid_of(frames.take(1)) == child
+    frames.close()
+
+
+def image_files() -> ImageFiles:
+    return ImageFiles([Path("left.png")], [Path("right.png")], (640, 480))
+
+
+@linux_only
+def test_the_worker_is_a_process_only_where_forking_is_safe(monkeypatch):
+    files = image_files()
+    tqdm(range(1), disable=True)  # starts tqdm's monitor thread, which takes no lock the child needs
+    assert tqdm.monitor is not None
+    # The threads that earlier tests left (dask's, say) are not this test's: say which run.
+    monkeypatch.setattr(threading, "enumerate", lambda: [threading.current_thread(), tqdm.monitor])
+    assert background_worker("process", files) == "process"
+    assert background_worker("thread", files) == "thread"
+    assert not BagImages.forks_safely  # a bag's open reader would be shared with the child
+    assert background_worker("process", SimpleNamespace(forks_safely=False)) == "thread"
+    other = threading.Thread(target=print)  # another thread could hold a lock the child needs
+    monkeypatch.setattr(threading, "enumerate", lambda: [threading.current_thread(), other])
+    assert background_worker("process", files) == "thread"
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie waiting to be reaped."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@linux_only
+def test_the_child_dies_with_a_killed_parent():
+    script = (
+        "import os, time\n"
+        "from pld_slam.frame_extraction import ExtractedFrame, FramePrefetcher\n"
+        "frames = FramePrefetcher(lambda i: ExtractedFrame(i, None, None, None, {'pid': float(os.getpid())}),"
+        " worker='process')\n"
+        "frames.prefetch([0])\n"
+        "print(int(frames.take(0).stage_ms['pid']), flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    child = int(parent.stdout.readline())
+    assert running(child)
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 5.0
+    while running(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not running(child)

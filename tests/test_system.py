@@ -10,10 +10,13 @@ With image 5 unreadable the run measured ATE 0.041 m (0.031 m intact); the bound
 import dataclasses
 import json
 import shutil
+import sys
+import threading
 
 import cv2
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import open_sequence
@@ -160,10 +163,45 @@ def test_tracked_frames_time_every_stage_and_the_first_frame_only_loading_the_fr
 def test_prefetching_the_next_frame_changes_nothing_but_where_the_front_end_runs(sequence, config, full_run):
     serial_config = dataclasses.replace(config, system=dataclasses.replace(config.system, prefetch=False))
     serial = System(sequence, serial_config).run()
+    assert serial.frontend_worker is None
     assert np.array_equal(serial.trajectory().poses, full_run.trajectory().poses)
     for record in serial.records[1:]:
         parts = sum(value for stage, value in record.stage_ms.items() if stage != "total")
         assert record.stage_ms["total"] >= parts - 1e-6  # without prefetching, every stage is a slice of the frame
+
+
+def test_the_front_end_gives_the_same_run_in_a_forked_process_as_in_a_thread(sequence, config, full_run,
+                                                                             monkeypatch):
+    # Threads that earlier tests left (dask's) would make the default a thread: say none runs.
+    monkeypatch.setattr(threading, "enumerate", lambda: [threading.current_thread()])
+    in_process = System(sequence, config).run()
+    thread_config = dataclasses.replace(config, system=dataclasses.replace(config.system, prefetch_worker="thread"))
+    in_thread = System(sequence, thread_config).run()
+    if sys.platform.startswith("linux"):
+        assert in_process.frontend_worker == "process"  # the default, where forking is safe
+    assert in_thread.frontend_worker == "thread"
+    for run in (in_process, in_thread):
+        assert np.array_equal(run.trajectory().poses, full_run.trajectory().poses)
+        assert [r.n_lines for r in run.records] == [r.n_lines for r in full_run.records]
+
+
+def blas_threads() -> set[int]:
+    return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+
+def test_blas_runs_one_thread_during_a_run_whatever_the_caller_set(sequence, config):
+    seen = []
+
+    def progress(indices):
+        for index in indices:
+            seen.append(blas_threads())
+            yield index
+
+    with threadpool_limits(limits=2, user_api="blas"):  # as in a program that imported numpy before pld_slam
+        System(sequence, config).run(max_frames=2, progress=progress)
+        after = blas_threads()
+    assert seen == [{1}, {1}]
+    assert after == {2}
 
 
 def test_max_frames_runs_only_the_first_frames(sequence, config, full_run):

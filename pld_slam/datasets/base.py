@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import cv2
 import numpy as np
@@ -142,7 +142,12 @@ class FrameSource(Protocol):
     Every folder layout stores image files (`ImageFiles`); a ROS bag stores messages
     (`pld_slam.datasets.rosbag.BagImages`). `StereoSequence` rectifies and scales what
     the source reads, so a source only reads and decodes.
+
+    ``forks_safely`` says whether a forked child process may read frames while the parent
+    holds the source open (`pld_slam.frame_extraction` extracts in one).
     """
+
+    forks_safely: ClassVar[bool]
 
     def __len__(self) -> int:
         """The number of stereo pairs."""
@@ -172,6 +177,9 @@ class ImageFiles:
     size : tuple of int
         ``(width, height)`` [px] of the calibration, which every image must have.
     """
+
+    forks_safely: ClassVar[bool] = True
+    """Each read opens its own file, so a forked child reads as the parent does."""
 
     left_paths: Sequence[Path]
     right_paths: Sequence[Path]

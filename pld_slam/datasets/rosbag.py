@@ -46,6 +46,7 @@ time through the bag's index. The bag stays open as long as the sequence is used
 
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -160,6 +161,9 @@ class BagImages:
     size : tuple of int
         ``(width, height)`` [px] of the calibration, which every image must have.
     """
+
+    forks_safely: ClassVar[bool] = False
+    """The open reader would be shared with a forked child: one file offset, one SQLite connection."""
 
     bag: Path
     reader: AnyReader
