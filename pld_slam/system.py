@@ -154,7 +154,7 @@ stream the poses to disk while the run goes)."""
 
 
 class System:
-    """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame.
+    """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame and then `close`.
 
     ``observer`` sees each frame with images and its `TrackedFrame`; ``record_observer``
     sees every frame's `FrameRecord`, a frame whose images could not be read included,
@@ -319,8 +319,14 @@ class System:
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
         finally:
-            self._frames.close()
+            self.close()
         return self.result
+
+    def close(self) -> None:
+        """Stop the front end's background worker (`run` does, at its end); after `process_frame`
+        calls of one's own, call it to end the worker's process or thread. Frames processed later
+        are extracted in the caller's thread."""
+        self._frames.close()
 
     def _finish(self) -> None:
         """Global BA over the whole map (``optimize.global_ba``), once the last frame is processed."""

@@ -9,6 +9,7 @@ With image 5 unreadable the run measured ATE 0.041 m (0.031 m intact); the bound
 
 import dataclasses
 import json
+import multiprocessing
 import shutil
 import sys
 import threading
@@ -183,6 +184,20 @@ def test_the_front_end_gives_the_same_run_in_a_forked_process_as_in_a_thread(seq
     for run in (in_process, in_thread):
         assert np.array_equal(run.trajectory().poses, full_run.trajectory().poses)
         assert [r.n_lines for r in run.records] == [r.n_lines for r in full_run.records]
+
+
+def test_close_ends_the_front_end_process_of_a_system_stepped_frame_by_frame(sequence, config, monkeypatch):
+    monkeypatch.setattr(threading, "enumerate", lambda: [threading.current_thread()])  # as in test above
+    before = set(multiprocessing.active_children())
+    system = System(sequence, config)
+    stepped = [system.process_frame(index) for index in range(3)]
+    worker = set(multiprocessing.active_children()) - before
+    system.close()
+    if sys.platform.startswith("linux"):
+        assert len(worker) == 1
+    assert not worker & set(multiprocessing.active_children())
+    assert system.process_frame(3).index == 3  # extracted in this thread from then on
+    assert [r.index for r in stepped] == [0, 1, 2]
 
 
 def blas_threads() -> set[int]:
