@@ -6,7 +6,8 @@ Sections (``--section``, all by default), each printing one table:
   and synthetic ``static``, ``dynamic`` and ``lowtexture`` sequences (``--frames`` frames,
   one per ``--seeds``), with mapping on and off (``lowtexture`` also with lines off): lost
   frames, keyframes, landmarks, ATE (SE(3) and Sim(3) alignment) and the estimate's path
-  length over the ground truth's, RPE, median point / line inliers, mean ms per frame of
+  length over the ground truth's, RPE, median point / line inliers, where the front end ran
+  ahead (process, thread, or - when not), mean ms per frame of
   each stage (local BA counted in the frame where it runs), median and mean ms per frame,
   median local BA ms, real-time factor. Then, per synthetic scenario, the mean ATE over
   seeds with mapping on and off and their ratio.
@@ -104,6 +105,7 @@ def accuracy_row(sequence: StereoSequence, variant: str, overrides: tuple[str, .
         "RPE R [deg]": summary["rpe_rot_rmse_deg"],
         "pt inl": features["map_point_inliers"] if with_map else features["point_inliers"],
         "line inl": features["map_line_inliers"] if with_map else features["line_inliers"],
+        "front in": summary["frontend_worker"] or "-",
         "front ms": mean_stage_ms(result, ("load", "frontend")),
         "track ms": mean_stage_ms(result, TRACKING_STAGES),
         "map ms": mean_stage_ms(result, ("mapping",)),

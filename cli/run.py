@@ -164,8 +164,12 @@ def run_and_write(
     partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
     system = System(sequence, run_config.config, observer,
                     record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
-    prepare_output_folder(out)
-    partial.start()
+    try:
+        prepare_output_folder(out)
+        partial.start()
+    except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
+        system.close()
+        raise
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):

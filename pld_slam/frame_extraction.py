@@ -19,11 +19,13 @@ Forking is safe only in some places, and elsewhere the worker is a thread
 - the platform must be Linux: Windows cannot fork, and on macOS Apple's system libraries
   (which OpenCV's threads use there) are not safe in a forked child, which is why Python
   does not fork there by default;
-- the process must run one thread when it forks (tqdm's progress-bar monitor aside): a lock
+- no other Python thread may run when it forks (tqdm's progress-bar monitor aside): a lock
   that another thread holds at the fork (numba's compiler lock, a logging handler's) stays
   locked forever in the child. So the child is forked when the prefetcher is made, before
-  the run starts any thread, and a program that runs several sequences in threads gets
-  threads;
+  the run starts any thread, and a program that runs several sequences in threads, or a
+  notebook, gets a thread. OpenCV's own worker threads (native, idle between calls) are
+  not Python threads: a child forked after them runs OpenCV's parallel code as the parent
+  does (OpenCV 4 and 5, pthreads backend);
 - the process must not be a daemon (a `multiprocessing.Pool` worker), which may not have
   children;
 - the frame source must be readable from two processes (``FrameSource.forks_safely``):
@@ -31,9 +33,10 @@ Forking is safe only in some places, and elsewhere the worker is a thread
   connection shared by the parent and the child) is not.
 
 The child ignores Ctrl-C (the parent stops the run and shuts it down) and is killed when
-the parent is (a time limit's kill: it would otherwise wait for work forever); a child that dies
-(killed, out of memory) costs nothing but speed: the frame it was extracting is extracted
-again in the caller's thread, and the rest of the run prefetches in a thread.
+the parent is (a time limit's kill: it would otherwise wait for work forever). A child that
+cannot start, or dies (killed, out of memory), costs only speed: the frames in flight are
+extracted again, the one asked for in the caller's thread, and from then on the worker is a
+thread (`FramePrefetcher.worker`, ``frontend_worker`` in ``summary.json``).
 
 Why `FRAMES_AHEAD` (3) frames ahead: the main thread's time per frame is uneven (a
 keyframe's local mapping and BA more than doubles it), and with one frame ahead the worker
@@ -44,10 +47,9 @@ ahead 103 / 86, 2 ahead 101 / 66, 3 ahead 91-93 / 58, 5 ahead 92 / 60; a thread 
 images and features, about 1 MB on KITTI.
 
 One reader at a time: a frame source may not be safe to read from two threads at once,
-so the main thread reads a frame itself only after the frame in flight, if any, is done.
+so the main thread reads a frame itself only after the frames in flight, if any, are done.
 """
 
-import ctypes
 import multiprocessing
 import os
 import signal
@@ -55,7 +57,7 @@ import sys
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Literal
@@ -115,15 +117,19 @@ BackgroundWorker = Literal["process", "thread"]
 
 
 def background_worker(requested: BackgroundWorker, source: FrameSource) -> BackgroundWorker:
-    """``requested``, unless it is a process and forking here is not safe (module docstring): then a thread."""
+    """``requested``, unless it is a process and forking here is not safe (module docstring): then a thread.
+
+    A frame source that does not say whether it forks safely (``forks_safely``) is taken
+    not to.
+    """
     forks_safely = (sys.platform.startswith("linux") and not multiprocessing.current_process().daemon
-                    and _no_other_thread_runs() and source.forks_safely)
+                    and _no_other_thread_runs() and getattr(source, "forks_safely", False))
     return "process" if requested == "process" and forks_safely else "thread"
 
 
 def _no_other_thread_runs() -> bool:
-    """Whether the calling thread is the only one, tqdm's monitor aside: a progress bar starts it
-    and it only ever takes tqdm's own lock, which the child does not use."""
+    """Whether the calling thread is the only Python thread, tqdm's monitor aside: a progress bar
+    starts it, and it takes only tqdm's lock and writes only progress bars, which the child never does."""
     others = [thread for thread in threading.enumerate()
               if thread is not threading.current_thread() and thread is not tqdm.monitor]
     return not others
@@ -137,7 +143,8 @@ class FramePrefetcher:
     ``worker`` is where `prefetch` extracts: a forked child process (forked here, see
     `background_worker` for when that is safe), a thread, or nowhere (None: `prefetch`
     does nothing and `take` extracts in the caller's thread). The worker extracts the
-    frames in the order asked, one at a time.
+    frames in the order asked, one at a time. `worker` says where it runs now: a child
+    that cannot start or dies leaves the work to a thread (module docstring).
     """
 
     def __init__(self, extract: Callable[[int], ExtractedFrame], worker: BackgroundWorker | None = "thread") -> None:
@@ -145,26 +152,33 @@ class FramePrefetcher:
         self._pending: deque[tuple[int, Future]] = deque()
         self._executor: Executor | None = None
         self._submit: Callable[[int], ExtractedFrame] = extract
+        self.worker = worker
         if worker == "process":
             self._executor = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
                                                  initializer=_become_extractor, initargs=(extract, os.getpid()))
             self._submit = _extract_in_child
-            self._executor.submit(int).result()  # fork now, while this process runs one thread
+            try:
+                self._executor.submit(int).result()  # fork now, while this process runs one thread
+            except BrokenProcessPool:
+                self._fall_back_to_thread()
         elif worker == "thread":
             self._executor = _frontend_thread()
 
     def take(self, index: int) -> ExtractedFrame:
         """Frame ``index``: the one prefetched if it is in flight, else extracted now.
 
-        Frames in flight before it are dropped; when it is not in flight, all are
-        dropped, after they finish, before this thread reads (one reader at a time). An
-        error other than an unreadable frame, raised while extracting in the background,
-        is raised here.
+        Frames in flight before it are dropped, whatever became of them; when it is not
+        in flight, all are, once finished, before this thread reads (one reader at a
+        time). An error other than an unreadable frame, raised while extracting frame
+        ``index`` in the background, is raised here.
         """
         while self._pending:
             pending_index, future = self._pending.popleft()
+            if pending_index != index:
+                wait([future])
+                continue
             extracted = self._result(future)
-            if pending_index == index and extracted is not None:
+            if extracted is not None:
                 return extracted
         return self._extract(index)
 
@@ -173,10 +187,11 @@ class FramePrefetcher:
         (nothing when prefetching is off)."""
         if self._executor is None:
             return
-        in_flight = {index for index, _ in self._pending}
-        for index in indices:
-            if index not in in_flight:
-                self._pending.append((index, self._executor.submit(self._submit, index)))
+        try:
+            self._submit_new(indices)
+        except BrokenProcessPool:  # the child died while it waited for work
+            self._fall_back_to_thread()
+            self._submit_new(indices)
 
     def close(self) -> None:
         """Drop the frames in flight and stop the background worker; `take` extracts in the
@@ -186,16 +201,25 @@ class FramePrefetcher:
             self._executor.shutdown(wait=True, cancel_futures=True)
             self._executor = None
 
+    def _submit_new(self, indices: Iterable[int]) -> None:
+        in_flight = {index for index, _ in self._pending}
+        for index in indices:
+            if index not in in_flight:
+                self._pending.append((index, self._executor.submit(self._submit, index)))
+
     def _result(self, future: Future) -> ExtractedFrame | None:
-        """The frame extracted in the background; None when the child process died (module
-        docstring): then every frame in flight is dropped and the prefetcher goes on in a thread."""
+        """The frame extracted in the background; None when the child process died extracting it."""
         try:
             return future.result()
         except BrokenProcessPool:
-            self._pending.clear()
-            self._executor.shutdown(wait=False)
-            self._executor, self._submit = _frontend_thread(), self._extract
+            self._fall_back_to_thread()
             return None
+
+    def _fall_back_to_thread(self) -> None:
+        """The child died (or never started): drop every frame in flight, and extract in a thread from now on."""
+        self._pending.clear()
+        self._executor.shutdown(wait=False)
+        self._executor, self._submit, self.worker = _frontend_thread(), self._extract, "thread"
 
 
 def _frontend_thread() -> ThreadPoolExecutor:
@@ -214,11 +238,23 @@ def _become_extractor(extract: Callable[[int], ExtractedFrame], parent: int) -> 
     parent (process id ``parent``) when it is killed, instead of waiting for work forever."""
     global _child_extract
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # killed before prctl
+    _die_with_parent()
+    if os.getppid() != parent:  # killed before that
         os._exit(1)
     one_blas_thread()  # takes effect at once, for the child's life
     _child_extract = extract
+
+
+def _die_with_parent() -> None:
+    """Ask Linux for SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``), where the C
+    library gives ``prctl`` to ctypes; elsewhere (a static build) a killed parent leaves the
+    child waiting, which costs memory, not the run."""
+    try:
+        import ctypes  # here: a Python without ctypes still runs, with the child of a killed parent waiting
+
+        ctypes.CDLL(None).prctl(ctypes.c_int(PR_SET_PDEATHSIG), ctypes.c_ulong(signal.SIGKILL))
+    except (ImportError, OSError, AttributeError):
+        pass
 
 
 def _extract_in_child(index: int) -> ExtractedFrame:

@@ -10,7 +10,8 @@ final global BA join here as they are built.
 With ``system.prefetch`` (the default), the next frames are read and their features
 extracted in a background worker, a forked process where that is safe, while this one is
 tracked and mapped (`pld_slam.frame_extraction`); the output is the same. BLAS runs one
-thread while the system calibrates and runs (`pld_slam.timing.one_blas_thread`).
+thread during the calibration and `run` (`pld_slam.timing.one_blas_thread`; a caller
+stepping `process_frame` itself can wrap its loop in it).
 
 Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
 spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
@@ -118,8 +119,9 @@ class RunResult:
     at each keyframe; ``loop_closing`` the loop stage (its candidates and closed loops; None
     without one); ``global_ba`` the final global BA (None when it did not run);
     ``disparity_offset`` the self-calibration before the run (None when switched off);
-    ``frontend_worker`` where the next frame was extracted ahead: ``"process"``,
-    ``"thread"`` (`pld_slam.frame_extraction.background_worker`), or None without prefetching.
+    ``frontend_worker`` where the next frames were extracted ahead: ``"process"``,
+    ``"thread"`` (`pld_slam.frame_extraction.background_worker`; a thread from the start or
+    after the forked child died), or None without prefetching.
     """
 
     records: list[FrameRecord] = field(default_factory=list)
@@ -189,7 +191,7 @@ class System:
                                        worker)
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
                                 wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3,
-                                frontend_worker=worker)
+                                frontend_worker=self._frames.worker)
         self._observer = observer
         self._record_observer = record_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
@@ -325,7 +327,9 @@ class System:
     def close(self) -> None:
         """Stop the front end's background worker (`run` does, at its end); after `process_frame`
         calls of one's own, call it to end the worker's process or thread. Frames processed later
-        are extracted in the caller's thread."""
+        are extracted in the caller's thread. ``result.frontend_worker`` then says where the
+        worker ran at the end (a thread when a forked child died during the run)."""
+        self.result.frontend_worker = self._frames.worker
         self._frames.close()
 
     def _finish(self) -> None:

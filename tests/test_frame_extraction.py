@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import pytest
 from tqdm import tqdm
 
+from pld_slam import frame_extraction
 from pld_slam.datasets.base import ImageFiles
 from pld_slam.datasets.rosbag import BagImages
 from pld_slam.errors import DatasetError
@@ -141,26 +142,72 @@ def test_errors_come_back_from_the_child_as_from_a_thread():
     frames = FramePrefetcher(ProcessReporter(fail_at=2, unreadable_at=1), worker="process")
     frames.prefetch([1])
     unreadable = frames.take(1)
+    assert pid_of(unreadable) != os.getpid()  # came back from the child
     assert isinstance(unreadable.error, DatasetError) and "frame 1 unreadable" in str(unreadable.error)
     frames.prefetch([2])
-    with pytest.raises(ValueError, match="frame 2"):
+    with pytest.raises(ValueError, match="frame 2") as raised:
         frames.take(2)
+    assert "_RemoteTraceback" in type(raised.value.__cause__).__name__  # raised in the child
+    assert frames.worker == "process"
     frames.close()
 
 
 @linux_only
-def test_a_child_that_dies_costs_only_the_background_its_frame_is_extracted_again_here():
+def test_frames_dropped_by_a_take_further_on_are_waited_for_and_their_errors_not_raised():
+    frames = FramePrefetcher(ProcessReporter(fail_at=5), worker="process")
+    frames.prefetch([4, 5, 6, 7])
+    sixth = frames.take(6)
+    seventh = frames.take(7)
+    frames.close()
+    assert (sixth.index, seventh.index) == (6, 7)
+    assert pid_of(sixth) == pid_of(seventh) != os.getpid()
+
+
+@linux_only
+def test_a_child_that_dies_costs_only_the_background_its_frames_are_extracted_again_here():
     frames = FramePrefetcher(ProcessReporter(die_at=2), worker="process")
     frames.prefetch([1])
     child = pid_of(frames.take(1))
-    frames.prefetch([2])
+    frames.prefetch([2, 3, 4])
     again = frames.take(2)
-    frames.prefetch([3])
-    after = frames.take(3)
+    frames.prefetch([3, 4, 5])
+    after = [frames.take(index) for index in (3, 4, 5)]
     frames.close()
     assert child != os.getpid()
     assert again.index == 2 and pid_of(again) == os.getpid()
-    assert after.index == 3 and pid_of(after) == os.getpid()  # a thread of this process from then on
+    assert [extracted.index for extracted in after] == [3, 4, 5]
+    assert {pid_of(extracted) for extracted in after} == {os.getpid()}  # a thread of this process from then on
+    assert frames.worker == "thread"
+
+
+@linux_only
+def test_a_child_that_dies_while_waiting_for_work_leaves_the_next_frames_to_a_thread():
+    frames = FramePrefetcher(ProcessReporter(), worker="process")
+    frames.prefetch([0])
+    child = pid_of(frames.take(0))
+    os.kill(child, signal.SIGKILL)
+    while running(child):
+        time.sleep(0.01)
+    time.sleep(0.2)  # the pool notices
+    frames.prefetch([1, 2])
+    taken = [frames.take(1), frames.take(2)]
+    frames.close()
+    assert [extracted.index for extracted in taken] == [1, 2]
+    assert {pid_of(extracted) for extracted in taken} == {os.getpid()}
+    assert frames.worker == "thread"
+
+
+@linux_only
+def test_a_child_that_cannot_start_leaves_the_work_to_a_thread(monkeypatch):
+    def broken_start(*_):
+        raise RuntimeError("no child today")
+
+    monkeypatch.setattr(frame_extraction, "_become_extractor", broken_start)
+    frames = FramePrefetcher(ProcessReporter(), worker="process")
+    assert frames.worker == "thread"
+    frames.prefetch([0, 1])
+    assert [pid_of(frames.take(index)) for index in (0, 1)] == [os.getpid()] * 2
+    frames.close()
 
 
 @linux_only
