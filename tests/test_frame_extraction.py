@@ -123,6 +123,13 @@ def pid_of(extracted: ExtractedFrame) -> int:
     return int(extracted.stage_ms["pid"])
 
 
+def prefetcher_with_a_child() -> tuple[FramePrefetcher, int]:
+    """A process prefetcher whose child has extracted frame 0, and the child's process id."""
+    frames = FramePrefetcher(ProcessReporter(), worker="process")
+    frames.prefetch([0])
+    return frames, pid_of(frames.take(0))
+
+
 @linux_only
 def test_with_a_process_worker_prefetched_frames_are_extracted_in_one_forked_child():
     frames = FramePrefetcher(ProcessReporter(), worker="process")
@@ -182,9 +189,7 @@ def test_a_child_that_dies_costs_only_the_background_its_frames_are_extracted_ag
 
 @linux_only
 def test_a_child_that_dies_while_waiting_for_work_leaves_the_next_frames_to_a_thread():
-    frames = FramePrefetcher(ProcessReporter(), worker="process")
-    frames.prefetch([0])
-    child = pid_of(frames.take(0))
+    frames, child = prefetcher_with_a_child()
     os.kill(child, signal.SIGKILL)
     while running(child):
         time.sleep(0.01)
@@ -212,9 +217,7 @@ def test_a_child_that_cannot_start_leaves_the_work_to_a_thread(monkeypatch):
 
 @linux_only
 def test_ctrl_c_is_left_to_the_parent_the_child_goes_on():
-    frames = FramePrefetcher(ProcessReporter(), worker="process")
-    frames.prefetch([0])
-    child = pid_of(frames.take(0))
+    frames, child = prefetcher_with_a_child()
     os.kill(child, signal.SIGINT)
     time.sleep(0.05)
     frames.prefetch([1])
