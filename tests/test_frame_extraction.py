@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import cv2
+import numpy as np
 import pytest
 from tqdm import tqdm
 
@@ -274,3 +276,25 @@ def test_the_child_dies_with_a_killed_parent():
     while running(child) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not running(child)
+
+
+def opencv_threads_started(index: int) -> ExtractedFrame:
+    """Runs an OpenCV parallel loop and says, in ``stage_ms``, how many threads the process had
+    before and after it: the pool of a clean process starts its workers for the loop."""
+    image = (np.random.default_rng(index).random((376, 1241)) * 255).astype(np.uint8)
+    before = len(os.listdir("/proc/self/task"))
+    cv2.ORB_create().detectAndCompute(image, None)
+    after = len(os.listdir("/proc/self/task"))
+    return ExtractedFrame(index, None, None, None, {"pid": float(os.getpid()), "before": before, "after": after})
+
+
+@linux_only
+def test_the_child_starts_its_own_opencv_workers_rather_than_inheriting_a_pool_without_threads():
+    opencv_threads_started(0)  # this process's OpenCV pool has its workers running
+    frames = FramePrefetcher(opencv_threads_started, worker="process")
+    frames.prefetch([1])
+    in_child = frames.take(1)
+    frames.close()
+    assert pid_of(in_child) != os.getpid()
+    assert in_child.stage_ms["after"] > in_child.stage_ms["before"]
+    assert cv2.getNumThreads() > 1  # the parent's setting is back
