@@ -26,9 +26,12 @@ Forking is safe only in some places, and elsewhere the worker is a thread
   notebook, gets a thread. OpenCV's own worker threads are not Python threads, but its
   pool would be inherited without them: the child would believe it has workers that do
   not exist (OpenCV's parallel loops then happen to run on the calling thread alone, but
-  resizing the pool joins threads that are not there and hung the child). So OpenCV's
-  workers are stopped for the fork (``cv2.setNumThreads(1)``) and restarted after it, in
-  both processes;
+  resizing the pool joins threads that are not there, and hung the child). So OpenCV's
+  workers are stopped for the fork (``cv2.setNumThreads(1)``), and only the parent
+  restarts them. The child keeps OpenCV on one thread: the front end's own two threads
+  (left and right image) fill one core and the main thread needs the other (KITTI 06,
+  three interleaved runs, mean / median ms per frame: 98 / 65 against 105 / 64 with two
+  OpenCV threads in the child; synthetic static, two runs: 70 / 36 against 74 / 40);
 - the process must not be a daemon (a `multiprocessing.Pool` worker), which may not have
   children;
 - the frame source must be readable from two processes (``FrameSource.forks_safely``):
@@ -44,12 +47,11 @@ thread (`FramePrefetcher.worker`, ``frontend_worker`` in ``summary.json``).
 Why `FRAMES_AHEAD` (3) frames ahead: the main thread's time per frame is uneven (a
 keyframe's local mapping and BA more than doubles it), and with one frame ahead the worker
 sat idle through a keyframe and the main thread then waited for it on the next frames. On
-KITTI 06 (2 cores, mean / median ms per frame, two interleaved runs each, medians; the
-child's OpenCV then ran on one thread, see above): process 1 frame ahead 103 / 86, 2
+KITTI 06 (2 cores, mean / median ms per frame, two interleaved runs each, medians):
+process 1 frame ahead 103 / 86, 2
 ahead 101 / 66, 3 ahead 91-93 / 58, 5 ahead 92 / 60; a thread 1 ahead 106 / 85, 3 ahead
-108 / 80; no prefetching 124-125 / 105-108. With the child's OpenCV workers restarted
-(three interleaved runs): process 3 ahead 88 / 58, thread 3 ahead 98 / 74. A frame in
-flight holds its images and features, about 1 MB on KITTI.
+108 / 80; no prefetching 124-125 / 105-108. A frame in flight holds its images and
+features, about 1 MB on KITTI.
 
 One reader at a time: a frame source may not be safe to read from two threads at once,
 so the main thread reads a frame itself only after the frames in flight, if any, are done.
@@ -164,9 +166,9 @@ class FramePrefetcher:
                                                  initializer=_become_extractor, initargs=(extract, os.getpid()))
             self._submit = _extract_in_child
             opencv_threads = cv2.getNumThreads()
-            cv2.setNumThreads(1)  # stops OpenCV's worker threads, which the child would inherit as a ghost pool
+            cv2.setNumThreads(1)  # stops OpenCV's workers: the child runs OpenCV on its own thread (module docstring)
             try:
-                self._executor.submit(_start_opencv_threads, opencv_threads).result()  # fork now
+                self._executor.submit(int).result()  # fork now
             except BrokenProcessPool:
                 self._fall_back_to_thread()
             finally:
@@ -265,11 +267,6 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None).prctl(ctypes.c_int(PR_SET_PDEATHSIG), ctypes.c_ulong(signal.SIGKILL))
     except (ImportError, OSError, AttributeError):
         pass
-
-
-def _start_opencv_threads(count: int) -> None:
-    """In the child: OpenCV's thread count as in the parent (its pool starts empty, module docstring)."""
-    cv2.setNumThreads(count)
 
 
 def _extract_in_child(index: int) -> ExtractedFrame:

@@ -278,23 +278,29 @@ def test_the_child_dies_with_a_killed_parent():
     assert not running(child)
 
 
-def opencv_threads_started(index: int) -> ExtractedFrame:
-    """Runs an OpenCV parallel loop and says, in ``stage_ms``, how many threads the process had
-    before and after it: the pool of a clean process starts its workers for the loop."""
+def opencv_pool_in_the_child(index: int) -> ExtractedFrame:
+    """Says, in ``stage_ms``, the child's OpenCV thread count, then lets OpenCV's pool grow to two
+    threads and counts the process's threads before and after a parallel loop: a clean pool
+    starts a worker for it, one inherited from the parent believes it has one already."""
     image = (np.random.default_rng(index).random((376, 1241)) * 255).astype(np.uint8)
+    inherited = cv2.getNumThreads()
+    cv2.setNumThreads(2)
     before = len(os.listdir("/proc/self/task"))
     cv2.ORB_create().detectAndCompute(image, None)
     after = len(os.listdir("/proc/self/task"))
-    return ExtractedFrame(index, None, None, None, {"pid": float(os.getpid()), "before": before, "after": after})
+    return ExtractedFrame(index, None, None, None,
+                          {"pid": float(os.getpid()), "opencv": inherited, "before": before, "after": after})
 
 
 @linux_only
-def test_the_child_starts_its_own_opencv_workers_rather_than_inheriting_a_pool_without_threads():
-    opencv_threads_started(0)  # this process's OpenCV pool has its workers running
-    frames = FramePrefetcher(opencv_threads_started, worker="process")
+def test_the_child_runs_opencv_on_one_thread_with_no_workers_inherited_from_the_parent():
+    opencv_threads = cv2.getNumThreads()
+    cv2.ORB_create().detectAndCompute(np.zeros((376, 1241), np.uint8), None)  # the parent's workers run
+    frames = FramePrefetcher(opencv_pool_in_the_child, worker="process")
     frames.prefetch([1])
     in_child = frames.take(1)
     frames.close()
     assert pid_of(in_child) != os.getpid()
+    assert in_child.stage_ms["opencv"] == 1
     assert in_child.stage_ms["after"] > in_child.stage_ms["before"]
-    assert cv2.getNumThreads() > 1  # the parent's setting is back
+    assert cv2.getNumThreads() == opencv_threads  # the parent's setting is back
