@@ -23,20 +23,22 @@ Forking is safe only in some places, and elsewhere the worker is a thread
   that another thread holds at the fork (numba's compiler lock, a logging handler's) stays
   locked forever in the child. So the child is forked when the prefetcher is made, before
   the run starts any thread, and a program that runs several sequences in threads, or a
-  notebook, gets a thread. OpenCV's own worker threads are not Python threads, but its
-  pool would be inherited without them: the child would believe it has workers that do
-  not exist (OpenCV's parallel loops then happen to run on the calling thread alone, but
-  resizing the pool joins threads that are not there, and hung the child). So OpenCV's
-  workers are stopped for the fork (``cv2.setNumThreads(1)``), and only the parent
-  restarts them. The child keeps OpenCV on one thread: the front end's own two threads
-  (left and right image) fill one core and the main thread needs the other (KITTI 06,
-  three interleaved runs, mean / median ms per frame: 98 / 65 against 105 / 64 with two
-  OpenCV threads in the child; synthetic static, two runs: 70 / 36 against 74 / 40);
+  notebook, gets a thread;
 - the process must not be a daemon (a `multiprocessing.Pool` worker), which may not have
   children;
 - the frame source must be readable from two processes (``FrameSource.forks_safely``):
   files opened per read are; a ROS bag's open reader (one file offset, one SQLite
   connection shared by the parent and the child) is not.
+
+OpenCV's own worker threads are not Python threads, but a child forked after them would
+inherit OpenCV's pool without them: it would believe it has workers that do not exist
+(its parallel loops then happen to run on the calling thread alone, but resizing the
+pool joins threads that are not there, and hung the child). So OpenCV's workers are
+stopped for the fork (``cv2.setNumThreads(1)``), and only the parent restarts them. The
+child keeps OpenCV on one thread: the front end's own two threads (left and right image)
+fill one core, and the main thread needs the other. KITTI 06, three interleaved runs,
+mean / median ms per frame: 98 / 65, against 105 / 64 with two OpenCV threads in the
+child; synthetic static, two runs: 70 / 36 against 74 / 40.
 
 The child ignores Ctrl-C (the parent stops the run and shuts it down) and is killed when
 the parent is (a time limit's kill: it would otherwise wait for work forever). A child that
@@ -47,11 +49,10 @@ thread (`FramePrefetcher.worker`, ``frontend_worker`` in ``summary.json``).
 Why `FRAMES_AHEAD` (3) frames ahead: the main thread's time per frame is uneven (a
 keyframe's local mapping and BA more than doubles it), and with one frame ahead the worker
 sat idle through a keyframe and the main thread then waited for it on the next frames. On
-KITTI 06 (2 cores, mean / median ms per frame, two interleaved runs each, medians):
-process 1 frame ahead 103 / 86, 2
-ahead 101 / 66, 3 ahead 91-93 / 58, 5 ahead 92 / 60; a thread 1 ahead 106 / 85, 3 ahead
-108 / 80; no prefetching 124-125 / 105-108. A frame in flight holds its images and
-features, about 1 MB on KITTI.
+KITTI 06 (2 cores, mean / median ms per frame, medians of two interleaved runs each):
+process 1 frame ahead 103 / 86, 2 ahead 101 / 66, 3 ahead 91-93 / 58, 5 ahead 92 / 60; a
+thread 1 ahead 106 / 85, 3 ahead 108 / 80; no prefetching 124-125 / 105-108. A frame in
+flight holds its images and features, about 1 MB on KITTI.
 
 One reader at a time: a frame source may not be safe to read from two threads at once,
 so the main thread reads a frame itself only after the frames in flight, if any, are done.
@@ -162,17 +163,7 @@ class FramePrefetcher:
         self._submit: Callable[[int], ExtractedFrame] = extract
         self.worker = worker
         if worker == "process":
-            self._executor = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                                 initializer=_become_extractor, initargs=(extract, os.getpid()))
-            self._submit = _extract_in_child
-            opencv_threads = cv2.getNumThreads()
-            cv2.setNumThreads(1)  # stops OpenCV's workers: the child runs OpenCV on its own thread (module docstring)
-            try:
-                self._executor.submit(int).result()  # fork now
-            except BrokenProcessPool:
-                self._fall_back_to_thread()
-            finally:
-                cv2.setNumThreads(opencv_threads)
+            self._fork_child()
         elif worker == "thread":
             self._executor = _frontend_thread()
 
@@ -212,6 +203,20 @@ class FramePrefetcher:
         if self._executor is not None:
             self._executor.shutdown(wait=True, cancel_futures=True)
             self._executor = None
+
+    def _fork_child(self) -> None:
+        """Fork the child now, with OpenCV's workers stopped for the fork (module docstring)."""
+        self._executor = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                             initializer=_become_extractor, initargs=(self._extract, os.getpid()))
+        self._submit = _extract_in_child
+        opencv_threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)  # the child keeps this: OpenCV on its own thread
+        try:
+            self._executor.submit(int).result()
+        except BrokenProcessPool:
+            self._fall_back_to_thread()
+        finally:
+            cv2.setNumThreads(opencv_threads)
 
     def _submit_new(self, indices: Iterable[int]) -> None:
         in_flight = {index for index, _ in self._pending}
