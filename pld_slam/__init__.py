@@ -7,7 +7,7 @@ columns), the front end already runs on the other core (`pld_slam.frame_extracti
 OpenBLAS's threads only spin. Measured on KITTI 06 with another process on the 2-core
 machine: local BA median 852 ms per keyframe with OpenBLAS's threads, 163 ms with one;
 the whole run 735 against 292-368 ms per frame. A program that imported numpy first still
-gets one BLAS thread while a `System` calibrates and runs (`pld_slam.timing.one_blas_thread`).
+gets one BLAS thread while a `System` calibrates and runs (`pld_slam.blas.one_blas_thread`).
 """
 
 import os

@@ -73,13 +73,14 @@ from typing import Literal
 import cv2
 from tqdm import tqdm
 
+from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.datasets.base import FrameSource
 from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.timing import StageClock, one_blas_thread
+from pld_slam.timing import StageClock
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,6 @@ class FramePrefetcher:
         self._extract = extract
         self._pending: deque[tuple[int, Future]] = deque()
         self._executor: Executor | None = None
-        self._submit: Callable[[int], ExtractedFrame] = extract
         self.worker = worker
         if worker == "process":
             self._fork_child()
@@ -208,7 +208,6 @@ class FramePrefetcher:
         """Fork the child now, with OpenCV's workers stopped for the fork (module docstring)."""
         self._executor = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
                                              initializer=_become_extractor, initargs=(self._extract, os.getpid()))
-        self._submit = _extract_in_child
         opencv_threads = cv2.getNumThreads()
         cv2.setNumThreads(1)  # the child keeps this: OpenCV on its own thread
         try:
@@ -219,10 +218,11 @@ class FramePrefetcher:
             cv2.setNumThreads(opencv_threads)
 
     def _submit_new(self, indices: Iterable[int]) -> None:
+        extract = _extract_in_child if self.worker == "process" else self._extract  # the child has its own
         in_flight = {index for index, _ in self._pending}
         for index in indices:
             if index not in in_flight:
-                self._pending.append((index, self._executor.submit(self._submit, index)))
+                self._pending.append((index, self._executor.submit(extract, index)))
 
     def _result(self, future: Future) -> ExtractedFrame | None:
         """The frame extracted in the background; None when the child process died extracting it."""
@@ -236,7 +236,7 @@ class FramePrefetcher:
         """The child died (or never started): drop every frame in flight, and extract in a thread from now on."""
         self._pending.clear()
         self._executor.shutdown(wait=False)
-        self._executor, self._submit, self.worker = _frontend_thread(), self._extract, "thread"
+        self._executor, self.worker = _frontend_thread(), "thread"
 
 
 def _frontend_thread() -> ThreadPoolExecutor:

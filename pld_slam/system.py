@@ -10,7 +10,7 @@ final global BA join here as they are built.
 With ``system.prefetch`` (the default), the next frames are read and their features
 extracted in a background worker, a forked process where that is safe, while this one is
 tracked and mapped (`pld_slam.frame_extraction`); the output is the same. BLAS runs one
-thread during the calibration and `run` (`pld_slam.timing.one_blas_thread`; a caller
+thread during the calibration and `run` (`pld_slam.blas.one_blas_thread`; a caller
 stepping `process_frame` itself can wrap its loop in it).
 
 Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import ConfigError
@@ -58,7 +59,7 @@ from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
-from pld_slam.timing import ms_since, one_blas_thread
+from pld_slam.timing import ms_since
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus

@@ -23,6 +23,14 @@ from pld_slam.frame_extraction import ExtractedFrame, FramePrefetcher, backgroun
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the front end forks only on Linux")
 
 
+def fake_frame(index: int, fail_at: int | None, unreadable_at: int | None, stage_ms: dict) -> ExtractedFrame:
+    """Frame ``index`` with nothing extracted: a failure at ``fail_at``, unreadable at ``unreadable_at``."""
+    if index == fail_at:
+        raise ValueError(f"broken extraction of frame {index}")
+    error = DatasetError(f"frame {index} unreadable") if index == unreadable_at else None
+    return ExtractedFrame(index, None, None, error, stage_ms)
+
+
 class RecordingExtractor:
     """Extracts nothing but records which thread asked for which frame, and whether two overlapped."""
 
@@ -39,10 +47,7 @@ class RecordingExtractor:
         try:
             self.calls.append((index, threading.current_thread().name))
             time.sleep(0.02)
-            if index == self._fail_at:
-                raise ValueError(f"broken extraction of frame {index}")
-            error = DatasetError(f"frame {index} unreadable") if index == self._unreadable_at else None
-            return ExtractedFrame(index, None, None, error, {})
+            return fake_frame(index, self._fail_at, self._unreadable_at, {})
         finally:
             self._busy.release()
 
@@ -115,10 +120,7 @@ class ProcessReporter:
     def __call__(self, index: int) -> ExtractedFrame:
         if index == self._die_at and os.getpid() != self._parent:
             os._exit(1)
-        if index == self._fail_at:
-            raise ValueError(f"broken extraction of frame {index}")
-        error = DatasetError(f"frame {index} unreadable") if index == self._unreadable_at else None
-        return ExtractedFrame(index, None, None, error, {"pid": float(os.getpid())})
+        return fake_frame(index, self._fail_at, self._unreadable_at, {"pid": float(os.getpid())})
 
 
 def pid_of(extracted: ExtractedFrame) -> int:
