@@ -72,11 +72,13 @@ from pld_slam.optim.observations import (
     LineObservations,
     ObservationMasks,
     PointObservations,
+    ResidualOptions,
     RowEvaluation,
     WhitenedRows,
+    chi2_inliers,
+    used_terms,
 )
-from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF, HUBER_SCALE, huber_without_curvature
+from pld_slam.optim.robust import huber_without_curvature
 
 _LSMR_MAX_ITERATIONS = 10
 """LSMR iterations allowed per step: the step is then an inexact Gauss-Newton step, which the
@@ -168,34 +170,20 @@ class BundleProblem:
 
 
 @dataclass(frozen=True)
-class BundleOptions:
-    """Settings of `bundle_adjust`.
+class BundleOptions(ResidualOptions):
+    """Settings of `bundle_adjust`: those every solver shares (`ResidualOptions`), and the following.
 
     Attributes
     ----------
-    use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
-    huber_scale : Huber ``f_scale`` [whitened units] of the robust round.
-    chi2_point, chi2_monocular_point, chi2_line, chi2_stereo_line : chi-square bounds of a
-        stereo point (3 dof), a point seen in the left image only (2 dof), a line term in one
-        image (2 dof) and a vertical term in both images (4 dof).
     max_nfev : residual evaluations allowed per round.
     ftol, lsmr_max_iterations : `least_squares`' relative cost tolerance, and the LSMR iterations
         of each step; the defaults (`_FTOL`, `_LSMR_MAX_ITERATIONS`) refine a map near its
         optimum, as local BA does; `TO_CONVERGENCE` solves to the optimum.
-    min_depth : smallest landmark depth [m] that counts as in front of a camera.
     """
 
-    use_line_vertical: bool = True
-    use_line_horizontal: bool = True
-    huber_scale: float = HUBER_SCALE
-    chi2_point: float = CHI2_95_3DOF
-    chi2_monocular_point: float = CHI2_95_2DOF
-    chi2_line: float = CHI2_95_2DOF
-    chi2_stereo_line: float = CHI2_95_4DOF
     max_nfev: int = 10
     ftol: float = _FTOL
     lsmr_max_iterations: int = _LSMR_MAX_ITERATIONS
-    min_depth: float = MIN_DEPTH
 
 
 @dataclass(frozen=True)
@@ -241,7 +229,7 @@ def bundle_adjust(
         at_state = every_row.evaluate(camera, state, options.min_depth)
         include = every_row.inliers(at_state, options) if robust else include
     inliers = every_row.inliers(at_state, options)
-    used = every_row.row_mask(_used_terms(inliers, options))
+    used = every_row.row_mask(used_terms(inliers, every_row.horizontal_eligible, options))
     return BundleResult(
         T_c_w=state.T_c_w,
         points_w=state.points_w,
@@ -350,7 +338,7 @@ class _BundleRows:
 
     def usable(self, evaluation: RowEvaluation) -> ObservationMasks:
         """Every observation whose landmark projects (``lines``: the observation, whose vertical term
-        `_used_terms` switches); a horizontal term only where it is switched on and passes its
+        `used_terms` switches); a horizontal term only where it is switched on and passes its
         chi-square test at the start (module docstring)."""
         point_chi2, vertical_chi2, horizontal_chi2 = self.rows.chi2(evaluation)
         in_front = np.isfinite(vertical_chi2)
@@ -362,21 +350,8 @@ class _BundleRows:
         )
 
     def inliers(self, evaluation: RowEvaluation, options: BundleOptions) -> ObservationMasks:
-        """The observations passing their chi-square tests (``lines``: the vertical term, or
-        in front of the camera when that term is off; ``line_horizontal``: only with its line)."""
-        point_chi2, vertical_chi2, horizontal_chi2 = self.rows.chi2(evaluation)
-        lines = (
-            self.rows.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
-            if options.use_line_vertical
-            else np.isfinite(vertical_chi2)
-        )
-        return ObservationMasks(
-            points=self.rows.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
-            lines=lines,
-            line_horizontal=lines & self.horizontal_eligible & options.use_line_horizontal
-            & (horizontal_chi2 <= options.chi2_line),
-        )
-
+        """The observations passing their chi-square tests (`chi2_inliers`)."""
+        return chi2_inliers(self.rows, *self.rows.chi2(evaluation), self.horizontal_eligible, options)
 
 def _solve(
     camera: StereoCamera,
@@ -389,7 +364,7 @@ def _solve(
 ) -> tuple[_State, int]:
     """One `least_squares` solve over the included rows from ``state``, where every row evaluates to
     ``at_state``; the new state and its nfev."""
-    used = every_row.row_mask(_used_terms(include, options))
+    used = every_row.row_mask(used_terms(include, every_row.horizontal_eligible, options))
     problem = _SparseProblem(camera, every_row, state, used, at_state.select(used))
     if problem.n_rows == 0:
         return state, 0
@@ -408,15 +383,6 @@ def _solve(
         **loss,
     )
     return problem.state(solution.x), solution.nfev
-
-
-def _used_terms(include: ObservationMasks, options: BundleOptions) -> ObservationMasks:
-    """The vertical and horizontal terms a solve uses: switched on, and the horizontal one only with its line."""
-    return ObservationMasks(
-        points=include.points,
-        lines=include.lines & options.use_line_vertical,
-        line_horizontal=include.lines & include.line_horizontal & options.use_line_horizontal,
-    )
 
 
 class _SparseProblem:

@@ -36,7 +36,8 @@ from pld_slam.optim.line_reprojection import (
     line_horizontal_rows,
     line_vertical_rows,
 )
-from pld_slam.optim.point_reprojection import poses_and_index, stereo_row_errors
+from pld_slam.optim.point_reprojection import MIN_DEPTH, poses_and_index, stereo_row_errors
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF, HUBER_SCALE
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,43 @@ class ObservationMasks:
         """The observations in both."""
         return ObservationMasks(self.points & other.points, self.lines & other.lines,
                                 self.line_horizontal & other.line_horizontal)
+
+
+@dataclass(frozen=True)
+class ResidualOptions:
+    """What every solver of these rows shares: the terms it uses, its robust loss, its inlier tests.
+
+    Attributes
+    ----------
+    use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
+    huber_scale : Huber ``f_scale`` [whitened units] of the robust solves.
+    chi2_point, chi2_monocular_point, chi2_line, chi2_stereo_line : chi-square inlier bounds
+        of a stereo point (3 dof), a point seen in the left image only (2 dof), a line term in
+        one image (2 dof) and a vertical term in both images (4 dof).
+    min_depth : smallest landmark depth [m] that counts as in front of a camera.
+    """
+
+    use_line_vertical: bool = True
+    use_line_horizontal: bool = True
+    huber_scale: float = HUBER_SCALE
+    chi2_point: float = CHI2_95_3DOF
+    chi2_monocular_point: float = CHI2_95_2DOF
+    chi2_line: float = CHI2_95_2DOF
+    chi2_stereo_line: float = CHI2_95_4DOF
+    min_depth: float = MIN_DEPTH
+
+
+def used_terms(
+    include: ObservationMasks, horizontal_eligible: np.ndarray, options: ResidualOptions
+) -> ObservationMasks:
+    """The points, vertical terms (``lines``) and horizontal terms (``line_horizontal``) a solve
+    uses of ``include``: each line term only where ``options`` switches it on, a horizontal term
+    only with its line and where it is eligible (``horizontal_eligible`` (M,) bool)."""
+    return ObservationMasks(
+        points=include.points,
+        lines=include.lines & options.use_line_vertical,
+        line_horizontal=include.lines & include.line_horizontal & horizontal_eligible & options.use_line_horizontal,
+    )
 
 
 class RowEvaluation(NamedTuple):
@@ -348,3 +386,29 @@ def _pairs_side_by_side(left: np.ndarray, right: np.ndarray) -> np.ndarray:
         4 * n, *left.shape[1:]
     )
 
+
+def chi2_inliers(
+    rows: WhitenedRows,
+    point_chi2: np.ndarray,
+    vertical_chi2: np.ndarray,
+    horizontal_chi2: np.ndarray,
+    horizontal_eligible: np.ndarray,
+    options: ResidualOptions,
+) -> ObservationMasks:
+    """The observations whose chi2 (`WhitenedRows.chi2` of ``rows``: points (N,), the vertical
+    (M,) and horizontal (M,) line terms) passes the bound of its dof; with the vertical term
+    switched off, every line that projects; a horizontal term only with its line, where it is
+    eligible (``horizontal_eligible`` (M,) bool) and switched on."""
+    line_inliers = (
+        rows.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
+        if options.use_line_vertical
+        else np.isfinite(vertical_chi2)
+    )
+    return ObservationMasks(
+        points=rows.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
+        lines=line_inliers,
+        line_horizontal=line_inliers
+        & horizontal_eligible
+        & options.use_line_horizontal
+        & (horizontal_chi2 <= options.chi2_line),
+    )

@@ -78,11 +78,13 @@ from pld_slam.optim.observations import (
     LineObservations,
     ObservationMasks,
     PointObservations,
+    ResidualOptions,
     RowEvaluation,
     WhitenedRows,
+    chi2_inliers,
+    used_terms,
 )
-from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF, HUBER_SCALE, huber_without_curvature
+from pld_slam.optim.robust import huber_without_curvature
 
 _STOPPING_TOLERANCES = dict(ftol=1e-5, xtol=1e-8, gtol=1e-8)
 """`least_squares` stopping rule: scipy's defaults but ``ftol``, the relative cost decrease of
@@ -94,37 +96,24 @@ _GRAM_RATIO_FLOOR = 1e-6
 
 
 @dataclass(frozen=True)
-class PoseOnlyOptions:
-    """Settings of the pose-only solve (the module docstring explains the choices).
+class PoseOnlyOptions(ResidualOptions):
+    """Settings of the pose-only solve (the module docstring explains the choices): those every
+    solver shares (`ResidualOptions`), and the following.
 
     Attributes
     ----------
-    use_line_vertical, use_line_horizontal : switch the two line terms (ablations).
-    huber_scale : Huber ``f_scale`` [whitened units] of the robust rounds.
-    chi2_point, chi2_monocular_point, chi2_line, chi2_stereo_line : chi-square inlier
-        thresholds of a stereo point (3 dof), a point seen in the left image only (2 dof), a
-        line term in one image (2 dof) and a vertical term in both images (4 dof).
     rounds, robust_rounds : solves of `optimize_pose_rejecting_outliers`, and how many of
         the first use the Huber loss.
     max_nfev : residual evaluations allowed per solve.
     min_residuals : fewest scalar residuals a solve needs.
     rank_tolerance : relative singular-value threshold of the rank test.
-    min_depth : smallest landmark depth [m] that counts as in front of the camera.
     """
 
-    use_line_vertical: bool = True
-    use_line_horizontal: bool = True
-    huber_scale: float = HUBER_SCALE
-    chi2_point: float = CHI2_95_3DOF
-    chi2_monocular_point: float = CHI2_95_2DOF
-    chi2_line: float = CHI2_95_2DOF
-    chi2_stereo_line: float = CHI2_95_4DOF
     rounds: int = 4
     robust_rounds: int = 3
     max_nfev: int = 100
     min_residuals: int = 12
     rank_tolerance: float = 1e-9
-    min_depth: float = MIN_DEPTH
 
 
 class PoseOnlyStatus(enum.Enum):
@@ -305,7 +294,7 @@ def _solve_round(
     every row at its pose, which is where the next round starts.
     """
     include = _drop_not_projecting(every_row, at_init, include)
-    used = every_row.row_mask(_used_terms(lines, options, include))
+    used = every_row.row_mask(used_terms(include, lines.horizontal_eligible, options))
     problem = _PoseProblem(camera, T_c_w_init, every_row.select(used), options.min_depth, at_init.select(used))
     failure = _check_solvable(problem, options)
     if failure is not None:
@@ -353,18 +342,6 @@ def _drop_not_projecting(
         points=include.points & np.isfinite(point_chi2),
         lines=include.lines & lines_in_front,
         line_horizontal=include.line_horizontal & lines_in_front,
-    )
-
-
-def _used_terms(lines: LineObservations, options: PoseOnlyOptions, include: ObservationMasks) -> ObservationMasks:
-    """The points, vertical terms (``lines``) and horizontal terms (``line_horizontal``) a solve uses."""
-    return ObservationMasks(
-        points=include.points,
-        lines=include.lines & options.use_line_vertical,
-        line_horizontal=include.lines
-        & include.line_horizontal
-        & lines.horizontal_eligible
-        & options.use_line_horizontal,
     )
 
 
@@ -424,31 +401,6 @@ def _result_at(
 ) -> PoseOnlyResult:
     """The result at ``T_c_w``: chi2 of every observation in ``evaluation`` (of ``every_row`` there) and the inliers."""
     point_chi2, vertical_chi2, horizontal_chi2 = every_row.chi2(evaluation)
-    inliers = chi2_inliers(every_row, point_chi2, vertical_chi2, horizontal_chi2, lines, options)
+    inliers = chi2_inliers(every_row, point_chi2, vertical_chi2, horizontal_chi2, lines.horizontal_eligible,
+                           options)
     return PoseOnlyResult(T_c_w, status, point_chi2, vertical_chi2, horizontal_chi2, inliers, nfev, rounds)
-
-
-def chi2_inliers(
-    every_row: WhitenedRows,
-    point_chi2: np.ndarray,
-    vertical_chi2: np.ndarray,
-    horizontal_chi2: np.ndarray,
-    lines: LineObservations,
-    options: PoseOnlyOptions,
-) -> ObservationMasks:
-    """The observations whose chi2 (`WhitenedRows.chi2` of ``every_row``: points (N,), the vertical
-    (M,) and horizontal (M,) line terms) passes the bound of its dof; with the vertical term
-    switched off, every line that projects."""
-    line_inliers = (
-        every_row.line_inliers(vertical_chi2, options.chi2_stereo_line, options.chi2_line)
-        if options.use_line_vertical
-        else np.isfinite(vertical_chi2)
-    )
-    return ObservationMasks(
-        points=every_row.point_inliers(point_chi2, options.chi2_point, options.chi2_monocular_point),
-        lines=line_inliers,
-        line_horizontal=line_inliers
-        & lines.horizontal_eligible
-        & options.use_line_horizontal
-        & (horizontal_chi2 <= options.chi2_line),
-    )

@@ -72,11 +72,16 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, rotation_angle, transform_points
-from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations, WhitenedRows
+from pld_slam.optim.observations import (
+    LineObservations,
+    ObservationMasks,
+    PointObservations,
+    WhitenedRows,
+    chi2_inliers,
+)
 from pld_slam.optim.pose_only import (
     PoseOnlyOptions,
     PoseOnlyResult,
-    chi2_inliers,
     optimize_pose,
     optimize_pose_rejecting_outliers,
 )
@@ -124,8 +129,8 @@ def stereo_point_chi2(camera: StereoCamera, motions: np.ndarray, points: PointOb
     rows = WhitenedRows.of(tiled, LineObservations.empty(), LineObservations.empty())
     evaluation = rows.evaluate(camera, motions, np.eye(4), options.min_depth,
                                point_pose=np.repeat(np.arange(n_motions), n_points))
-    chi2, vertical_chi2, horizontal_chi2 = rows.chi2(evaluation)
-    passed = chi2_inliers(rows, chi2, vertical_chi2, horizontal_chi2, LineObservations.empty(), options).points
+    chi2, _, _ = rows.chi2(evaluation)
+    passed = rows.point_inliers(chi2, options.chi2_point, options.chi2_monocular_point)
     return chi2.reshape(n_motions, n_points), passed.reshape(n_motions, n_points)
 
 
@@ -217,7 +222,7 @@ def line_inliers_at(camera: StereoCamera, T_c_r: np.ndarray, lines: LineObservat
     """Whether each line observation (M,) passes the pose solve's test at ``T_c_r`` (`chi2_inliers`)."""
     rows = WhitenedRows.of(PointObservations.empty(), lines, lines)
     chi2 = rows.chi2(rows.evaluate(camera, T_c_r, T_c_r, options.min_depth))
-    return chi2_inliers(rows, *chi2, lines, options).lines
+    return chi2_inliers(rows, *chi2, lines.horizontal_eligible, options).lines
 
 
 def outlier_count(solution: PoseOnlyResult) -> int:
