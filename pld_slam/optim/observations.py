@@ -1,4 +1,5 @@
-"""Point and line observations, and the whitened residual rows every solver minimises.
+"""Point and line observations, the whitened residual rows every solver minimises, and what
+every solver's options share (`ResidualOptions`: the terms used, the loss, the inlier tests).
 
 Pose-only tracking (`pose_only`) and bundle adjustment (`bundle_adjustment`) share these
 rows: stereo point reprojection errors (`point_reprojection`) and line vertical and
