@@ -14,9 +14,11 @@ import pytest
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
+from pld_slam.frontend import extract_stereo_features
 from pld_slam.geometry.se3 import inverse
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
+from pld_slam.tracking import tracker as tracker_module
 from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 30
@@ -59,3 +61,36 @@ def test_the_sub_sequence_keeps_the_chosen_frames_and_rebases_the_ground_truth(s
     np.testing.assert_allclose(part.groundtruth.poses, expected, atol=1e-12)
     np.testing.assert_allclose(part.groundtruth.poses[0], np.eye(4), atol=1e-12)
     assert part.name.endswith("_from12_every2")
+
+
+def test_posing_without_the_prior_against_another_keyframe_leaves_the_tracker_on_its_own(street, monkeypatch):
+    """Relocalisation against another keyframe's local map is only a proposal: the tracker keeps its
+    reference keyframe and local map until `track` takes the pose (it may keep the guided one)."""
+    config = load_config()
+    system = System(street, config)
+    try:
+        for index in range(16):
+            system.process_frame(index)
+        tracker = system.tracker
+        reference, local_map = tracker._reference_keyframe, tracker._local_map
+        first = min(system.local_mapping.map.keyframes)
+        assert reference.id != first
+        real_pose_without_prior = tracker_module.pose_without_prior
+        calls = []
+
+        def fails_on_own_local_map(*args, **kwargs):
+            calls.append(len(calls))
+            return None if len(calls) == 1 else real_pose_without_prior(*args, **kwargs)
+
+        monkeypatch.setattr(tracker_module, "pose_without_prior", fails_on_own_local_map)
+        monkeypatch.setattr(tracker_module, "keyframes_by_similarity", lambda *args: [first])
+        frame = street[16]
+        features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
+                                           config.ggs)
+        proposal = tracker._track_without_prior(features, np.zeros(len(features.keypoints), dtype=bool),
+                                                np.zeros(len(features.lines), dtype=bool))
+    finally:
+        system.close()
+    assert len(calls) == 2  # the own local map failed, the first keyframe's gave a pose
+    assert tracker._reference_keyframe is reference and tracker._local_map is local_map
+    assert proposal is not None and proposal[1].keyframes[0] == first

@@ -87,10 +87,12 @@ from pld_slam.config import Config
 from pld_slam.frontend import LeftKeypoints, StereoFeatures, StereoLines, StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, transform_points
+from pld_slam.geometry.segments import segment_midpoints
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks, predicted_octaves
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
 from pld_slam.tracking.matching import (
+    MIN_SEARCH_DEPTH,
     FrameMatches,
     match_predicted_segments,
     pairs_within,
@@ -100,8 +102,6 @@ from pld_slam.tracking.matching import (
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.static_world import static_world_solution
 
-_MIN_DEPTH = 0.1
-"""A landmark nearer than this to the camera plane [m] is not searched for."""
 MOVER_DEPTH_TOLERANCE = 0.2
 """A mover's point within this share of a landmark's depth stands at its depth
 (`missed_near_movers`): a car 4.5 m long seen from 20 m spans about 10 % in depth and
@@ -132,6 +132,7 @@ class LandmarkSnapshot:
 
     @classmethod
     def of(cls, kind: Landmarks, ids: np.ndarray) -> "LandmarkSnapshot":
+        """The landmarks ``ids`` (N,) of ``kind`` as they are now (lines: no scale range, ``max_distance`` inf)."""
         max_distance = kind.max_distance[ids] if isinstance(kind, PointLandmarks) else np.full(len(ids), np.inf)
         return cls(ids, kind.geometry[ids], kind.descriptor[ids], kind.normal[ids], max_distance)
 
@@ -170,6 +171,7 @@ class ReferenceMatches:
 
     @classmethod
     def empty(cls) -> "ReferenceMatches":
+        """No reference matches (a pose found without the reference frame)."""
         no_ids = np.zeros(0, dtype=np.int64)
         return cls(np.zeros((0, 3)), no_ids, np.zeros((0, 2, 3)), no_ids, no_ids, no_ids)
 
@@ -319,7 +321,7 @@ def match_map_points_in_frames(
     n_points, n_frames, sizes = len(points), len(frames), _sizes(frames)
     scale, levels = config.points.scale_factor, config.points.n_levels
     p_c = np.stack([transform_points(T, points.geometry) for T in T_c_w]).reshape(-1, 3)  # frame by frame
-    in_front = p_c[:, 2] > _MIN_DEPTH
+    in_front = p_c[:, 2] > MIN_SEARCH_DEPTH
     stereo_px = camera.project_stereo(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
     distance = np.linalg.norm(p_c, axis=1)
     max_distances = np.tile(points.max_distance, n_frames)
@@ -364,7 +366,7 @@ def match_map_lines_in_frames(
     midpoints = lines.geometry.mean(axis=1)
     visible = (
         in_front
-        & camera.inside_image(0.5 * (predicted[:, :2] + predicted[:, 2:]))
+        & camera.inside_image(segment_midpoints(predicted))
         & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle).ravel()
     )
     radius = config.mapping.line_search_radius_px
@@ -497,9 +499,9 @@ def points_in_view(camera: StereoCamera, T_c_w: np.ndarray, p_w: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points ``p_w`` (N, 3) seen from a camera at ``T_c_w`` (4, 4): in the camera frame (N, 3),
     their pixels (N, 2) (those behind the camera at the principal point), and which lie in view (N,)
-    bool: deeper than `_MIN_DEPTH` and projecting inside the image."""
+    bool: deeper than `MIN_SEARCH_DEPTH` and projecting inside the image."""
     p_c = transform_points(T_c_w, p_w)
-    in_front = p_c[:, 2] > _MIN_DEPTH
+    in_front = p_c[:, 2] > MIN_SEARCH_DEPTH
     uv = camera.project(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
     return p_c, uv, in_front & camera.inside_image(uv)
 
@@ -613,15 +615,13 @@ def _within_viewing_angle(
 
 
 def _static(matches: FrameMatches, dynamic: np.ndarray) -> FrameMatches:
-    """The matches whose current feature is not labelled dynamic."""
-    keep = ~dynamic[matches.current]
-    return FrameMatches(matches.previous[keep], matches.current[keep])
+    """The matches whose current feature is not labelled dynamic (``dynamic``: bool over the current features)."""
+    return matches.subset(~dynamic[matches.current])
 
 
 def _dynamic(matches: FrameMatches, dynamic: np.ndarray) -> FrameMatches:
-    """The matches whose current feature is labelled dynamic."""
-    keep = dynamic[matches.current]
-    return FrameMatches(matches.previous[keep], matches.current[keep])
+    """The matches whose current feature is labelled dynamic (``dynamic``: bool over the current features)."""
+    return matches.subset(dynamic[matches.current])
 
 
 def _inlier_ids(n_features: int, observed: _MapObservations, inliers: np.ndarray) -> np.ndarray:

@@ -25,8 +25,9 @@ from pld_slam.geometry.se3 import transform_points
 from pld_slam.geometry.segments import oriented_angle_differences, segment_directions, segment_midpoints
 from pld_slam.jit import kernel
 
-_MIN_DEPTH = 0.1
-"""A predicted feature closer than this to the current camera [m] is not searched for."""
+MIN_SEARCH_DEPTH = 0.1
+"""A predicted feature or landmark nearer than this to the camera plane [m] is not searched for
+(nor judged missed)."""
 _MAX_CELLS = 1_000_000
 """`pairs_within` widens its cells so that the observed pixels' extent holds at most this many
 (8 MB of cell starts), whatever the pixels' spread; an image, or a fusion's 11 keyframes
@@ -45,7 +46,12 @@ class FrameMatches:
 
     @classmethod
     def empty(cls) -> "FrameMatches":
+        """No matches."""
         return cls(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+    def subset(self, keep: np.ndarray) -> "FrameMatches":
+        """The matches where ``keep`` (K,) bool is True."""
+        return FrameMatches(self.previous[keep], self.current[keep])
 
 
 def predict_segments(
@@ -61,7 +67,7 @@ def predict_segments(
 def predict_pixels(camera: StereoCamera, T_c_p: np.ndarray, points_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Current-image pixels (N, 2) of points (N, 3) of the previous camera, and which are in front (N,)."""
     points_c = transform_points(T_c_p, points_p)
-    in_front = points_c[:, 2] > _MIN_DEPTH
+    in_front = points_c[:, 2] > MIN_SEARCH_DEPTH
     depth = np.where(in_front, points_c[:, 2], 1.0)
     pixels = camera.project(np.column_stack([points_c[:, :2], depth]))
     return pixels, in_front

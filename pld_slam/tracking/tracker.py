@@ -134,9 +134,9 @@ class TrackedFrame:
     status : how the pose was obtained.
     counts : matches, filter survivors, dynamic features and inliers.
     stage_ms : wall time of each tracking stage [ms]: ``matching``, ``filters``, ``dynamic``,
-        ``pose``, and with a map ``local_map``.
-    dynamic : the matched features of this frame and their dynamic labels (None when
-        nothing was matched: the first frame, a skipped one).
+        ``pose``, and with a map ``local_map`` and ``see_through``.
+    dynamic : the matched features of this frame and their dynamic labels (empty labels when
+        nothing was matched; None for the first frame and a skipped one).
     map : what tracking the local map found (None without a map, or when not tracked against it).
     keyframe : why the frame becomes a keyframe, or None (always None without a map).
     point_dynamic, line_dynamic : (P,), (L,) bool, the frame's keypoints and lines labelled
@@ -175,6 +175,7 @@ class _LandmarkIds:
 
     @classmethod
     def none(cls, features: StereoFeatures) -> "_LandmarkIds":
+        """No landmark for any stereo point or line of ``features``."""
         return cls(np.full(len(features.points), -1), np.full(len(features.lines), -1))
 
     @classmethod
@@ -237,7 +238,7 @@ class Tracker:
         if self._reference is None:
             return self._first_frame(features, moving_mask)
         clock = StageClock()
-        T_c_r_predicted = self._velocity @ inverse(self._T_w_p) @ self._T_w_r
+        T_c_r_predicted = self._predicted_T_c_w() @ self._T_w_r
         matched, widened = self._match(self._reference, features, T_c_r_predicted)
         clock.lap("matching")
         kept = self._filter(self._reference, features, matched)
@@ -271,7 +272,7 @@ class Tracker:
         min_inliers = self._config.tracking.min_inliers
         tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
         tracked_by_reference = tracked
-        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._T_w_p @ inverse(self._velocity)
+        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._predicted_T_w_c()
         map_tracking = None
         recovered = False
         if self._local_map is not None:
@@ -283,8 +284,9 @@ class Tracker:
             suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
             if suspect and not self._predicted(map_tracking, widened):
                 from_scratch = self._track_without_prior(features, point_dynamic, line_dynamic)
-                if from_scratch is not None and self._better_from_scratch(from_scratch, map_tracking, widened):
-                    map_tracking, recovered = from_scratch, True
+                if from_scratch is not None and self._better_from_scratch(from_scratch[0], map_tracking, widened):
+                    map_tracking, recovered = from_scratch[0], True
+                    self._use_local_map(from_scratch[1])
             clock.lap("local_map")
             if self._map_tracked(map_tracking):
                 T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
@@ -351,8 +353,15 @@ class Tracker:
         last frame not tracked normally, or this frame's guided search widened) or the map gave no pose."""
         if widened or not self._prior_trusted or not self._map_tracked(map_tracking):
             return None
-        T_c_w_predicted = self._velocity @ inverse(self._T_w_p)
-        return motion_model_distance(map_tracking.solution.T_c_w, T_c_w_predicted, self._config)
+        return motion_model_distance(map_tracking.solution.T_c_w, self._predicted_T_c_w(), self._config)
+
+    def _predicted_T_w_c(self) -> np.ndarray:
+        """The motion model's pose (4, 4) of the frame after the previous one, camera to world."""
+        return self._T_w_p @ inverse(self._velocity)
+
+    def _predicted_T_c_w(self) -> np.ndarray:
+        """The same pose, world to camera (4, 4)."""
+        return self._velocity @ inverse(self._T_w_p)
 
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
@@ -382,12 +391,14 @@ class Tracker:
 
     def _track_without_prior(
         self, features: StereoFeatures, point_dynamic: np.ndarray, line_dynamic: np.ndarray
-    ) -> LocalMapTracking | None:
-        """The local map tracked from a pose found without the motion model (`relocalisation`), or None.
+    ) -> tuple[LocalMapTracking, LocalMap] | None:
+        """The local map tracked from a pose found without the motion model (`relocalisation`), and
+        the local map it was tracked against; None when none gave a pose.
 
         First against the local map of the reference keyframe; failing that, against the
-        local maps of the keyframes most similar by GGS, which then becomes the reference
-        keyframe (relocalisation). A frame without a GGS (not computed) skips the second.
+        local maps of the keyframes most similar by GGS (relocalisation). A frame without a
+        GGS (not computed) skips the second. The tracker switches to the local map only if it
+        takes the pose (`_use_local_map`).
         """
         candidates = [self._local_map]
         if features.place_ggs is not None:
@@ -406,11 +417,15 @@ class Tracker:
                 self._pose_options, ReferenceMatches.empty(),
             )
             if self._map_tracked(tracking):
-                if local_map is not self._local_map:
-                    self._local_map = local_map
-                    self._reference_keyframe = self._map.keyframes[local_map.keyframes[0]]
-                return tracking
+                return tracking, local_map
         return None
+
+    def _use_local_map(self, local_map: LocalMap) -> None:
+        """Track against ``local_map`` from now on; when it is another keyframe's (relocalisation),
+        that keyframe becomes the reference keyframe."""
+        if local_map is not self._local_map:
+            self._local_map = local_map
+            self._reference_keyframe = self._map.keyframes[local_map.keyframes[0]]
 
     def _reference_matches(
         self, kept: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels
@@ -503,10 +518,16 @@ class Tracker:
         kept: _FrameMatches,
         labels: DynamicLabels,
         landmarks: _LandmarkIds,
-        renew: bool = False,
+        renew: bool,
     ) -> None:
         """Record the dynamic features seen, age the reference, and renew it when worn, after a failure,
-        or when ``renew`` (a pose recovered without the prior: the reference's matches are not to be trusted)."""
+        or when ``renew`` (a pose recovered without the prior: the reference's matches are not to be trusted).
+
+        After a failure the reference is the failed frame itself (at its motion-model
+        pose) if it has features enough to be tracked against (`can_be_reference`):
+        tracking goes on from the newest features, which is how it recovers from a wrong
+        prediction. A frame without them (blank, blinded) keeps the old reference.
+        """
         self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
         self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
         inliers = counts.point_inliers + counts.line_inliers
@@ -521,16 +542,18 @@ class Tracker:
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
 
-        The reference stays, so the next frame is matched against it as usual.
+        The reference stays, so the next frame is matched against it as usual; the motion
+        model is not trusted for it (module docstring: only after a frame tracked normally).
         """
-        self._T_w_p = nearest_pose(self._T_w_p @ inverse(self._velocity))
+        self._prior_trusted = False
+        self._T_w_p = nearest_pose(self._predicted_T_w_c())
         return TrackedFrame(self._T_w_p.copy(), self._velocity, TrackingStatus.LOST)
 
     def _set_reference(
         self,
         features: StereoFeatures,
         T_w_c: np.ndarray,
-        dynamic: _DynamicIndices | None = None,
+        dynamic: _DynamicIndices,
         landmarks: _LandmarkIds | None = None,
     ) -> None:
         """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
@@ -538,21 +561,15 @@ class Tracker:
         ``dynamic`` lists the frame's features found dynamic: they stay known as dynamic
         while it is the reference (`dynamic` module docstring). ``landmarks`` are the map
         landmarks its features observe (none by default): frames matched to it inherit them.
-
-        After a failure the reference is the failed frame itself (at its motion-model
-        pose) if it has features enough to be tracked against (`can_be_reference`):
-        tracking goes on from the newest features, which is how it recovers from a wrong
-        prediction. A frame without them (blank, blinded) keeps the old reference.
         """
         self._reference, self._T_w_r = features, T_w_c
         self._reference_landmarks = _LandmarkIds.none(features) if landmarks is None else landmarks
         self._reference_age, self._reference_inliers = 0, 0
         self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
         self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)
-        if dynamic is not None:
-            stereo = dynamic.points[dynamic.points < len(features.points)]  # the stereo points: the first keypoints
-            self._seen_dynamic_points[stereo] = True
-            self._seen_dynamic_lines[dynamic.lines] = True
+        stereo = dynamic.points[dynamic.points < len(features.points)]  # the stereo points: the first keypoints
+        self._seen_dynamic_points[stereo] = True
+        self._seen_dynamic_lines[dynamic.lines] = True
 
     def can_be_reference(self, features: StereoFeatures) -> bool:
         """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
@@ -598,12 +615,12 @@ class Tracker:
             keep = point_grid_filter(
                 reference.points.uv[points.previous], current.points.uv[points.current], filters
             )
-            points = FrameMatches(points.previous[keep], points.current[keep])
+            points = points.subset(keep)
         if filters.line_llg:
             keep = line_llg_filter(
                 reference.lines.endpoints[lines.previous], current.lines.endpoints[lines.current], filters
             )
-            lines = FrameMatches(lines.previous[keep], lines.current[keep])
+            lines = lines.subset(keep)
         return _FrameMatches(points, lines)
 
     def _label_dynamic(
@@ -688,6 +705,7 @@ class Tracker:
 
 
 def _status(tracked: bool, recovered: bool) -> TrackingStatus:
+    """LOST when not tracked, RECOVERED when posed without the prior, else TRACKED."""
     if not tracked:
         return TrackingStatus.LOST
     return TrackingStatus.RECOVERED if recovered else TrackingStatus.TRACKED
@@ -757,6 +775,7 @@ def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_ma
 def _counts(
     matched: _FrameMatches, kept: _FrameMatches, labels: DynamicLabels, solution: PoseOnlyResult
 ) -> TrackingCounts:
+    """What survived each step against the reference frame (`TrackingCounts`; no map counts yet)."""
     return TrackingCounts(
         point_matches=len(matched.points),
         line_matches=len(matched.lines),
