@@ -283,10 +283,12 @@ class Tracker:
             )
             suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
             if suspect and not self._predicted(map_tracking, widened):
-                from_scratch = self._track_without_prior(features, point_dynamic, line_dynamic)
-                if from_scratch is not None and self._better_from_scratch(from_scratch[0], map_tracking, widened):
-                    map_tracking, recovered = from_scratch[0], True
-                    self._use_local_map(from_scratch[1])
+                proposal = self._track_without_prior(features, point_dynamic, line_dynamic)
+                if proposal is not None:
+                    from_scratch, its_local_map = proposal
+                    if self._better_from_scratch(from_scratch, map_tracking, widened):
+                        map_tracking, recovered = from_scratch, True
+                        self._use_local_map(its_local_map)
             clock.lap("local_map")
             if self._map_tracked(map_tracking):
                 T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
