@@ -238,7 +238,7 @@ class LoopClosing:
             keyframe = self.map.keyframes[keyframe_id]
             for kind in self.map.kinds:
                 ids = getattr(keyframe, kind.IDS_FIELD)
-                ids = np.unique(ids[kind.live(ids)])
+                ids = kind.live_ids(ids)
                 ids = ids[~moved[kind][ids]]
                 moved[kind][ids] = True
                 _transform_landmarks(kind, ids, world_motion)

@@ -149,6 +149,11 @@ class Landmarks:
         valid[valid] = self.alive[ids[valid]]
         return valid
 
+    def live_ids(self, ids: np.ndarray) -> np.ndarray:
+        """The distinct ids among ``ids`` (K,) int64 (``-1`` for none) that name a live landmark, ascending."""
+        ids = np.asarray(ids)
+        return np.unique(ids[self.live(ids)])
+
     def _reserve(self, size: int) -> None:
         """Grow every column to hold at least ``size`` rows (doubling)."""
         capacity = len(self._data["alive"])

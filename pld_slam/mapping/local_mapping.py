@@ -298,11 +298,11 @@ class LocalMapping:
         targets = self._neighbour_targets(keyframe)
         changes = 0
         for kind in self.map.kinds:
-            own = _live_ids(kind, getattr(keyframe, kind.IDS_FIELD))
+            own = kind.live_ids(getattr(keyframe, kind.IDS_FIELD))
             changes += self.fuse(kind, targets, own)
             theirs = np.concatenate([getattr(target, kind.IDS_FIELD) for target in targets] or [np.zeros(0, int)])
-            changes += self.fuse(kind, [keyframe], np.setdiff1d(_live_ids(kind, theirs), own))
-            self._refresh(kind, _live_ids(kind, getattr(keyframe, kind.IDS_FIELD)))
+            changes += self.fuse(kind, [keyframe], np.setdiff1d(kind.live_ids(theirs), own))
+            self._refresh(kind, kind.live_ids(getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
             self.map.attach_to_tree(touched)
         return changes
@@ -398,7 +398,7 @@ class LocalMapping:
             candidate = self.map.keyframes[candidate_id]
             observed = redundant = 0
             for kind in self.map.kinds:
-                ids = _live_ids(kind, getattr(candidate, kind.IDS_FIELD))
+                ids = kind.live_ids(getattr(candidate, kind.IDS_FIELD))
                 observed += len(ids)
                 redundant += int(np.count_nonzero(kind.n_observers[ids] - 1 >= config.redundant_observers))
             if observed and redundant >= config.redundant_keyframe_ratio * observed:
@@ -407,10 +407,4 @@ class LocalMapping:
         return tuple(culled)
 
     def _refresh(self, kind: Landmarks, ids: np.ndarray) -> None:
-        self.map.refresh_landmarks(kind, _live_ids(kind, ids), self._config.points.scale_factor)
-
-
-def _live_ids(kind: Landmarks, ids: np.ndarray) -> np.ndarray:
-    """The distinct live landmark ids among ``ids`` (which may hold -1), ascending."""
-    ids = np.unique(ids[ids >= 0])
-    return ids[kind.alive[ids]]
+        self.map.refresh_landmarks(kind, kind.live_ids(ids), self._config.points.scale_factor)

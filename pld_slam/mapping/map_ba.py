@@ -136,9 +136,8 @@ def adjust_keyframes(
 
 def _landmarks_of(world_map: Map, kind: Landmarks, keyframes: list[int]) -> np.ndarray:
     """Live landmarks (K,) of ``kind`` observed by ``keyframes`` and by at least two keyframes in all, ascending."""
-    ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
-    ids = np.unique(ids[ids >= 0])
-    return ids[kind.alive[ids] & (kind.n_observers[ids] >= 2)]
+    live = kind.live_ids(np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes]))
+    return live[kind.n_observers[live] >= 2]
 
 
 def _observations(world_map: Map, kind: Landmarks, landmarks: np.ndarray) -> _Observations:

@@ -292,9 +292,8 @@ def observed_landmarks(world_map: Map, keyframes: tuple[int, ...]) -> tuple[np.n
     """The live point and line ids (ascending) observed by any of ``keyframes`` (ids)."""
     observed = []
     for kind in world_map.kinds:
-        ids = np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes])
-        ids = np.unique(ids[ids >= 0])
-        observed.append(ids[kind.alive[ids]])
+        observed.append(kind.live_ids(np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD)
+                                                      for k in keyframes])))
     return observed[0], observed[1]
 
 
