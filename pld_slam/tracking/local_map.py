@@ -225,7 +225,7 @@ class LocalMapTracking:
     ----------
     solution : the pose-only solve (``T_c_w`` world to camera) over the static map matches and
         the reference matches of the features without one.
-    point_ids, line_ids : (P,), (L,) int64 landmark of each keypoint / line that matched
+    point_ids, line_ids : (P_all,), (L,) int64 landmark of each keypoint / line that matched
         one and is an inlier of ``solution``, ``-1`` otherwise.
     visible_point_ids, visible_line_ids : landmarks predicted in view (within the search's bounds).
     missed : the local map's points the solve missed (`missed_in_image`).
@@ -427,7 +427,7 @@ def track_local_map(
     """Match the local map into the frame from ``T_c_w_init`` (4, 4) and solve ``T_c_w`` over the static
     matches and the ``reference`` matches of features without a map match (module docstring).
 
-    ``dynamic_points`` (P,) and ``dynamic_lines`` (L,) bool label the frame's keypoints and lines.
+    ``dynamic_points`` (P_all,) and ``dynamic_lines`` (L,) bool label the frame's keypoints and lines.
     ``check_static_world``: ``T_c_w_init`` is a trusted pose of the static world (module docstring).
     """
     keypoints = features.keypoints

@@ -139,9 +139,9 @@ class TrackedFrame:
         nothing was matched; None for the first frame and a skipped one).
     map : what tracking the local map found (None without a map, or when not tracked against it).
     keyframe : why the frame becomes a keyframe, or None (always None without a map).
-    point_dynamic, line_dynamic : (P,), (L,) bool, the frame's keypoints and lines labelled
+    point_dynamic, line_dynamic : (P_all,), (L,) bool, the frame's keypoints and lines labelled
         dynamic (empty when the frame had no features).
-    point_rejected, line_rejected : (P,), (L,) bool, the frame's keypoints and lines matched to
+    point_rejected, line_rejected : (P_all,), (L,) bool, the frame's keypoints and lines matched to
         the reference frame whose match its pose rejected (none when the pose did not come
         from the reference: the first frame, a lost or recovered one).
     """
@@ -716,7 +716,7 @@ def _status(tracked: bool, recovered: bool) -> TrackingStatus:
 def _dynamic_features(
     current: StereoFeatures, matches: _FrameMatches, labels: DynamicLabels
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The current frame's keypoints (P,) and lines (L,) labelled dynamic, as bool masks over all of them.
+    """The current frame's keypoints (P_all,) and lines (L,) labelled dynamic, as bool masks over all of them.
 
     The labels are on stereo points, which are the first keypoints (same indices).
     """
@@ -751,7 +751,7 @@ def _rejected_features(
     current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels,
     from_reference: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The current frame's keypoints (P,) and lines (L,) matched to the reference that ``solution``
+    """The current frame's keypoints (P_all,) and lines (L,) matched to the reference that ``solution``
     rejected and that are not labelled dynamic; none unless the pose came ``from_reference``."""
     points = np.zeros(len(current.keypoints), dtype=bool)
     lines = np.zeros(len(current.lines), dtype=bool)
