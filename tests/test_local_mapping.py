@@ -331,6 +331,24 @@ def test_a_find_soon_after_a_landmark_was_seen_moving_does_not_end_its_dynamic_s
     check_map_consistency(mapping.map)
 
 
+def test_the_feature_of_a_landmark_removed_as_moving_is_not_mapped_again_by_the_same_keyframe():
+    """A slow mover found static within the dynamic memory is tracked by the new keyframe; the
+    landmark goes for its streak, and its feature there must not start a fresh landmark (one
+    without the streak) at the mover."""
+    mapping = local_mapping(config_with(dynamic_streak=2, dynamic_memory=10))
+    mapping.insert_keyframe(keyframe_seeing(mapping, points=range(5)))
+    nothing, first = np.zeros(0, dtype=np.int64), np.array([0])
+    for found, moving in [(np.arange(1, 5), first), (np.arange(1, 5), first), (np.arange(5), nothing)]:
+        mapping.record_tracking(visible=(np.arange(5), nothing), found=(found, nothing),
+                                missed=(nothing, nothing), dynamic=(moving, nothing))
+    keyframe = keyframe_seeing(mapping, points=range(5), tracked_points=[0, 1, 2, 3, 4])
+    insertion = mapping.insert_keyframe(keyframe)
+    assert not mapping.map.points.alive[0]
+    assert insertion.created_points == 0
+    assert keyframe.point_ids[0] == -1
+    check_map_consistency(mapping.map)
+
+
 def test_a_landmark_of_any_age_missed_in_max_missed_frames_tracked_frames_in_a_row_is_removed():
     mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=4),
                                          points=range(4), lines=range(2))
