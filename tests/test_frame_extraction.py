@@ -250,10 +250,11 @@ def test_the_worker_is_a_process_only_where_forking_is_safe(monkeypatch):
 
 
 def running(pid: int) -> bool:
-    """Whether process ``pid`` exists and is not a zombie waiting to be reaped."""
+    """Whether process ``pid`` exists and is not a zombie waiting to be reaped (one reaped between
+    opening its stat file and reading it raises ProcessLookupError: seen in a fresh virtual environment)."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
-    except FileNotFoundError:
+    except (FileNotFoundError, ProcessLookupError):
         return False
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
