@@ -20,6 +20,7 @@ adjustment moves an endpoint only across its line unless a horizontal error meas
 infinite line and its endpoints their places along it.
 """
 
+from collections.abc import Iterable
 from typing import ClassVar
 
 import numpy as np
@@ -153,6 +154,11 @@ class Landmarks:
         """The distinct ids among ``ids`` (K,) int64 (``-1`` for none) that name a live landmark, ascending."""
         ids = np.asarray(ids)
         return np.unique(ids[self.live(ids)])
+
+    def observed_by(self, keyframes: Iterable) -> np.ndarray:
+        """The distinct live landmarks (ascending) that any of ``keyframes`` (`KeyFrame` objects) observes."""
+        ids = [getattr(keyframe, self.IDS_FIELD) for keyframe in keyframes]
+        return self.live_ids(np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64))
 
     def _reserve(self, size: int) -> None:
         """Grow every column to hold at least ``size`` rows (doubling)."""

@@ -312,8 +312,7 @@ class LocalMapping:
         for kind in self.map.kinds:
             own = kind.live_ids(getattr(keyframe, kind.IDS_FIELD))
             changes += self.fuse(kind, targets, own)
-            theirs = np.concatenate([getattr(target, kind.IDS_FIELD) for target in targets] or [np.zeros(0, int)])
-            changes += self.fuse(kind, [keyframe], np.setdiff1d(kind.live_ids(theirs), own))
+            changes += self.fuse(kind, [keyframe], np.setdiff1d(kind.observed_by(targets), own))
             self._refresh(kind, kind.live_ids(getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
             self.map.attach_to_tree(touched)

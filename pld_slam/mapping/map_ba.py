@@ -136,7 +136,7 @@ def adjust_keyframes(
 
 def _landmarks_of(world_map: Map, kind: Landmarks, keyframes: list[int]) -> np.ndarray:
     """Live landmarks (K,) of ``kind`` observed by ``keyframes`` and by at least two keyframes in all, ascending."""
-    live = kind.live_ids(np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD) for k in keyframes]))
+    live = kind.observed_by(world_map.keyframes[k] for k in keyframes)
     return live[kind.n_observers[live] >= 2]
 
 

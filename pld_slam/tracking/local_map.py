@@ -290,11 +290,8 @@ def local_map_of(world_map: Map, keyframes: tuple[int, ...], excluded: tuple[np.
 
 def observed_landmarks(world_map: Map, keyframes: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """The live point and line ids (ascending) observed by any of ``keyframes`` (ids)."""
-    observed = []
-    for kind in world_map.kinds:
-        observed.append(kind.live_ids(np.concatenate([getattr(world_map.keyframes[k], kind.IDS_FIELD)
-                                                      for k in keyframes])))
-    return observed[0], observed[1]
+    points, lines = (kind.observed_by(world_map.keyframes[k] for k in keyframes) for kind in world_map.kinds)
+    return points, lines
 
 
 def match_map_points(
