@@ -9,7 +9,13 @@ until one passes; then the loop is corrected:
 
 1. The current keyframe takes the pose the geometric check found in the candidate's map,
    and its covisible neighbours move with it, rigidly (ORB-SLAM2's corrected Sim(3)s; SE(3)
-   here), with the landmarks they observe. Only neighbours from the current side move
+   here), with the landmarks whose reference keyframe (step 4) is among them. ORB-SLAM2
+   moves every map point the group observes and records which keyframe corrected it
+   (``mnCorrectedReference``) so that step 4 does not move it again; we move only the
+   landmarks the group is the reference of, which needs no record: a landmark referenced
+   outside the group (on the loop side, or a current-side keyframe too little covisible to
+   be in the group) stays, and step 4 moves it once, with its reference keyframe. Moving
+   it in step 1 too moved it by the correction twice. Only neighbours from the current side move
    (ids after the candidate's plus ``loop.exclude_recent_keyframes``): near the end of a
    loop, tracking may already have linked the current keyframe to a few keyframes of the
    loop's start, and moving those with it moved the first keyframe by the whole
@@ -22,14 +28,18 @@ until one passes; then the loop is corrected:
    was before the correction, measured with the poses before it, plus every loop edge
    closed so far.
 4. Every landmark moves with its reference keyframe (the keyframe that created it, or its
-   first observer when that one was culled), as ORB-SLAM2 corrects map points; frames
-   follow their reference keyframes through their relative storage (`pld_slam.system`).
+   first observer when that one was culled), as ORB-SLAM2 corrects map points, its mean
+   viewing direction turning with it; the group's landmarks are then refreshed (normal,
+   descriptor, distance: fusion gave them observations from the other end), as ORB-SLAM2's
+   ``Replace`` and ``UpdateNormalAndDepth`` do. Frames follow their reference keyframes
+   through their relative storage (`pld_slam.system`).
 
 The loop keyframes are not protected from culling (ORB-SLAM2 protects them); a loop edge
 whose keyframe was culled is dropped from later graphs.
 """
 
 import time
+from collections.abc import Container
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,10 +230,14 @@ class LoopClosing:
         correction_m, correction_deg = correction_size(check.T_c_w @ keyframe.T_w_c)
         group = [keyframe.id, *(k for k in self.map.covisibility.neighbours(keyframe.id)
                                 if k > candidate.id + self._config.loop.exclude_recent_keyframes)]
+        loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
         self._move_rigidly(group, inverse(check.T_c_w) @ keyframe.T_c_w)
-        fused = self._fuse(keyframe, candidate, check, group)
+        fused = self._fuse(keyframe, check, group, (loop_side.points.ids, loop_side.lines.ids))
         self._loop_edges.append(_LoopEdge(keyframe.id, candidate.id, keyframe.T_c_w @ candidate.T_w_c))
         graph_result, n_edges = self._optimise(edges, before)
+        for kind in self.map.kinds:
+            group_landmarks = kind.observed_by(self.map.keyframes[k] for k in group)
+            self.map.refresh_landmarks(kind, group_landmarks, self._config.points.scale_factor)
         return ClosedLoop(
             keyframe=keyframe.id, candidate=candidate.id, frame=keyframe.frame_index,
             candidate_frame=candidate.frame_index, correction_m=correction_m, correction_deg=correction_deg,
@@ -231,28 +245,31 @@ class LoopClosing:
         )
 
     def _move_rigidly(self, group: list[int], world_motion: np.ndarray) -> None:
-        """Step 1: move the keyframes ``group`` (ids) and their landmarks by one rigid motion of the
-        world, ``world_motion`` (4, 4) ``T_w_new_w_old``; the keyframes keep their relative poses."""
-        moved = {kind: np.zeros(len(kind), dtype=bool) for kind in self.map.kinds}
+        """Step 1: move the keyframes ``group`` (ids) and the landmarks they are the reference of by
+        one rigid motion of the world, ``world_motion`` (4, 4) ``T_w_new_w_old``; the keyframes keep
+        their relative poses."""
+        for kind in self.map.kinds:
+            observed = kind.observed_by(self.map.keyframes[k] for k in group)
+            references = [_reference_keyframe(kind, landmark, self.map.keyframes) for landmark in observed.tolist()]
+            _transform_landmarks(kind, observed[np.isin(references, group)], world_motion)
         for keyframe_id in group:
             keyframe = self.map.keyframes[keyframe_id]
-            for kind in self.map.kinds:
-                ids = getattr(keyframe, kind.IDS_FIELD)
-                ids = kind.live_ids(ids)
-                ids = ids[~moved[kind][ids]]
-                moved[kind][ids] = True
-                _transform_landmarks(kind, ids, world_motion)
             keyframe.T_c_w = keyframe.T_c_w @ inverse(world_motion)
 
-    def _fuse(self, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck, group: list[int]) -> int:
-        """Step 2: join the two ends of the loop; returns the observations added or fused."""
+    def _fuse(
+        self, keyframe: KeyFrame, check: GeometricCheck, group: list[int], loop_side: tuple[np.ndarray, np.ndarray]
+    ) -> int:
+        """Step 2: join the two ends of the loop; returns the observations added or fused.
+
+        ``loop_side`` are the point and line ids of the candidate's local map the current side did not
+        observe, taken before the inliers are fused (after, the keyframe is covisible with the
+        candidate's neighbourhood, and none would be left to project).
+        """
         found = check.tracking
         fused = 0
         for kind, loop_ids in zip(self.map.kinds, (found.point_ids, found.line_ids)):
             features = np.flatnonzero(loop_ids >= 0)
             fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
-        loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
-        loop_side = (loop_side.points.ids, loop_side.lines.ids)
         for kind, ids in zip(self.map.kinds, loop_side):
             fused += self._local_mapping.fuse(kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids)
         for keyframe_id in group:
@@ -289,7 +306,7 @@ class LoopClosing:
         row = {k: n for n, k in enumerate(ids.tolist())}
         for kind in self.map.kinds:
             landmarks = np.flatnonzero(kind.alive)
-            references = np.array([_reference_keyframe(kind, landmark, row) for landmark in landmarks.tolist()],
+            references = np.array([row[_reference_keyframe(kind, landmark, row)] for landmark in landmarks.tolist()],
                                   dtype=np.int64)
             for reference in np.unique(references).tolist():
                 at = landmarks[references == reference]
@@ -313,17 +330,18 @@ def check_vocabulary_given(config: Config) -> None:
         )
 
 
-def _reference_keyframe(kind: Landmarks, landmark: int, row: dict[int, int]) -> int:
-    """Row in ``row`` of a landmark's reference keyframe: its creator if live, else its first observer."""
+def _reference_keyframe(kind: Landmarks, landmark: int, live: Container[int]) -> int:
+    """Id of a landmark's reference keyframe: its creator if among the ``live`` keyframe ids, else its first
+    observer."""
     creator = int(kind.first_keyframe[landmark])
-    if creator in row:
-        return row[creator]
-    return row[next(iter(kind.observers[landmark]))]
+    return creator if creator in live else next(iter(kind.observers[landmark]))
 
 
 def _transform_landmarks(kind: Landmarks, ids: np.ndarray, T_new_old: np.ndarray) -> None:
-    """Apply the world motion ``T_new_old`` (4, 4) to landmarks ``ids`` (K,) of ``kind``."""
+    """Apply the world motion ``T_new_old`` (4, 4) to landmarks ``ids`` (K,) of ``kind``: their geometry
+    and their mean viewing direction (``normal``, world)."""
     if len(ids) == 0:
         return
     geometry = kind.geometry[ids]
     kind.geometry[ids] = transform_points(T_new_old, geometry.reshape(-1, 3)).reshape(geometry.shape)
+    kind.normal[ids] = kind.normal[ids] @ T_new_old[:3, :3].T
