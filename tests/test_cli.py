@@ -385,11 +385,33 @@ def test_ctrl_c_mid_run_names_the_files_written_and_where(synthetic_sequence, tm
     assert len(read_kitti(out / "trajectory.kitti.txt")) == 3
 
 
+def wait_until_importing_numpy(child: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Return once ``child`` has loaded numpy's core library (read from ``/proc/PID/maps``).
+
+    A fixed sleep was flaky: on a busy machine in a fresh environment, the interpreter's own
+    start-up (site's ``.pth`` files, compiling bytecode) could outlast it, and a Ctrl-C there
+    is Python's traceback, before any code of ours runs.
+    """
+    maps = f"/proc/{child.pid}/maps"
+    if not os.path.exists(maps):
+        pytest.skip("needs /proc to see what the child process has loaded")
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            with open(maps) as lines:
+                if "_multiarray_umath" in lines.read():
+                    return
+        except (FileNotFoundError, ProcessLookupError):
+            break
+        time.sleep(0.01)
+    raise AssertionError(f"the child process never loaded numpy (exit code {child.poll()})")
+
+
 def test_ctrl_c_during_start_up_is_one_line_and_no_traceback(synthetic_sequence, tmp_path):
     child = subprocess.Popen([sys.executable, "-m", "pld_slam_cli", "run", str(synthetic_sequence),
                               "--out", str(tmp_path / "run")], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
                              text=True)
-    time.sleep(1.0)  # the commands' imports take ~3 s
+    wait_until_importing_numpy(child)  # the command's imports (numpy first) take ~3 s, inside the error policy
     child.send_signal(signal.SIGINT)
     _, stderr = child.communicate(timeout=300)
     # The command exits with 130; in 1 to 3 of 10 runs on a busy machine (before and after
