@@ -77,12 +77,8 @@ def scale_and_sim3(sequence: StereoSequence, result: RunResult) -> dict:
         return {"ATE sim3 [m]": None, "path ratio": None}
     estimate = result.trajectory()
     truth = sequence.groundtruth
-    ratio = _path_length(estimate.positions) / max(_path_length(truth.positions), 1e-12)
+    ratio = estimate.path_length() / max(truth.path_length(), 1e-12)
     return {"ATE sim3 [m]": evaluate(truth, estimate, align="sim3").ate_rmse_m, "path ratio": ratio}
-
-
-def _path_length(positions: np.ndarray) -> float:
-    return float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1)))
 
 
 def accuracy_row(sequence: StereoSequence, variant: str, overrides: tuple[str, ...]) -> dict:

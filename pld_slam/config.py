@@ -376,8 +376,9 @@ class LoopConfig:
     max_view_angle_deg: float = _param(
         30.0, "... and whose optical axes are at most this far apart [deg]", 0.0, 180.0
     )
-    lc_rat_alpha: float = _param(0.001, "alpha of lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl (paper: 0.001)", 0.0)
-    initial_inlier_ratio: float = _param(0.5, "initial inlier ratio of a loop candidate (paper: 0.5)", 0.0, 1.0)
+    lc_rat_alpha: float = _param(
+        0.001, "alpha of lc_rat = ratio_inl * (1 - alpha * ||log(T_i T_j^-1)||), our reading (paper: 0.001)", 0.0
+    )
     lc_rat_threshold: float = _param(0.2, "a candidate whose lc_rat lies below this is rejected (paper: 0.2)", 0.0)
     pose_graph_min_shared_ratio: float = _param(
         0.2, "share of common features for a pose-graph edge (paper: 20%)", 0.0, 1.0

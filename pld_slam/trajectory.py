@@ -44,7 +44,7 @@ class Trajectory:
 
     def path_length(self) -> float:
         """Length of the polyline through the camera centres [m]."""
-        return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+        return polyline_length(self.positions)
 
     def relative_to_first(self) -> "Trajectory":
         """The same motion with the world moved to the first camera (first pose = identity)."""
@@ -55,3 +55,8 @@ class Trajectory:
     def head(self, n: int) -> "Trajectory":
         """The first ``n`` poses."""
         return Trajectory(self.timestamps[:n], self.poses[:n])
+
+
+def polyline_length(points: np.ndarray) -> float:
+    """Length [m] of the polyline through ``points`` (N, 3), in order; 0 for fewer than two."""
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())

@@ -19,8 +19,8 @@ def test_defaults_are_the_papers_values():
     assert (config.ggs.scale, config.ggs.grid_rows, config.ggs.grid_cols, config.ggs.bins) == (0.8, 3, 4, 256)
     assert config.keyframes.ggs_gain == 0.4
     assert config.mapping.covisibility_min_shared == 20
-    assert (config.loop.lc_rat_alpha, config.loop.initial_inlier_ratio) == (0.001, 0.5)
-    assert (config.loop.lc_rat_threshold, config.loop.pose_graph_min_shared_ratio) == (0.2, 0.2)
+    assert (config.loop.lc_rat_alpha, config.loop.lc_rat_threshold, config.loop.pose_graph_min_shared_ratio) == (
+        0.001, 0.2, 0.2)
     assert config.loop.detector == "ggs"
 
 

@@ -201,6 +201,11 @@ def viewpoint_change(T_w_a: np.ndarray, T_w_b: np.ndarray) -> tuple[np.ndarray, 
     return distance, np.degrees(np.arccos(np.clip(axes_cos, -1.0, 1.0)))
 
 
+def motion_size(T: np.ndarray) -> tuple[float, float]:
+    """How far [m] and how much [deg] a relative pose ``T`` (4, 4) moves and turns."""
+    return float(np.linalg.norm(T[:3, 3])), float(np.degrees(rotation_angle(T[:3, :3])))
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Rotation angle [rad] of a rotation (3, 3) or a stack (N, 3, 3), in [0, pi]."""
     trace = np.trace(R, axis1=-2, axis2=-1)

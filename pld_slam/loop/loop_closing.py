@@ -47,7 +47,7 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.errors import ConfigError
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, transform_points
+from pld_slam.geometry.se3 import inverse, motion_size, transform_points
 from pld_slam.loop.bow_detector import BowDetector
 from pld_slam.loop.detection import Detection, LoopDetector
 from pld_slam.loop.ggs_detector import GgsDetector
@@ -61,7 +61,6 @@ from pld_slam.loop.pose_graph import (
 from pld_slam.loop.verify import (
     GeometricCheck,
     around,
-    correction_size,
     geometric_check,
     lc_rat,
     path_length,
@@ -202,7 +201,7 @@ class LoopClosing:
                           motion=motion, lc_rat=score)
             correction = check.T_c_w @ keyframe.T_w_c
             drift = plausible_drift(correction, path_length(self.map, candidate.id, keyframe.id), config)
-            values["correction_m"], values["correction_deg"] = correction_size(correction)
+            values["correction_m"], values["correction_deg"] = motion_size(correction)
             if check.inliers < config.min_inliers:
                 reason = "inliers"
             elif not drift:
@@ -227,7 +226,7 @@ class LoopClosing:
         start = time.perf_counter()
         before = {k: frame.T_c_w.copy() for k, frame in self.map.keyframes.items()}
         edges = essential_edges(self.map, self._config.loop.pose_graph_min_shared_ratio)
-        correction_m, correction_deg = correction_size(check.T_c_w @ keyframe.T_w_c)
+        correction_m, correction_deg = motion_size(check.T_c_w @ keyframe.T_w_c)
         group = [keyframe.id, *(k for k in self.map.covisibility.neighbours(keyframe.id)
                                 if k > candidate.id + self._config.loop.exclude_recent_keyframes)]
         loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))

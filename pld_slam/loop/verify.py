@@ -57,12 +57,12 @@ GGS) is accepted only when it passes every test here, cheapest first:
 
    with ``T_i`` the current keyframe's pose found by the check, ``T_j`` the candidate's,
    the twist norm in metres and radians, and ``ratio_inl`` the check's inliers over its
-   matches (the 50 % "initial" ratio is what a true loop is expected to reach; PnP's 300
-   RANSAC iterations cover it with 0.999 confidence, which needs 218 with OpenCV's 5-point
-   samples). The discount is small at alpha = 0.001 (2 % at 20 m): the test rejects
-   above all a candidate whose matches are mostly wrong, which is what perceptual
-   aliasing produces (a repeated facade matched by descriptor, fitting a pose with a few
-   chance inliers).
+   matches. The paper's 50 % "initial" inlier ratio is not a parameter here: it is what a
+   true loop is expected to reach, and PnP's 300 RANSAC iterations cover it with 0.999
+   confidence (which needs 218 with OpenCV's 5-point samples). The discount is small at
+   alpha = 0.001 (2 % at 20 m): the test rejects above all a candidate whose matches are
+   mostly wrong, which is what perceptual aliasing produces (a repeated facade matched by
+   descriptor, fitting a pose with a few chance inliers).
 """
 
 from dataclasses import dataclass
@@ -71,7 +71,7 @@ import numpy as np
 
 from pld_slam.config import Config, LoopConfig
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, rotation_angle, se3_log, viewpoint_change
+from pld_slam.geometry.se3 import inverse, motion_size, se3_log, viewpoint_change
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
@@ -83,6 +83,7 @@ from pld_slam.tracking.local_map import (
     track_local_map,
 )
 from pld_slam.tracking.relocalisation import pose_without_prior
+from pld_slam.trajectory import polyline_length
 
 
 @dataclass(frozen=True)
@@ -143,18 +144,12 @@ def present_landmarks(world_map: Map, keyframe: KeyFrame) -> tuple[np.ndarray, n
 def path_length(world_map: Map, first: int, last: int) -> float:
     """Length [m] of the path through the live keyframes with ids from ``first`` to ``last``, in id order."""
     ids = [k for k in sorted(world_map.keyframes) if first <= k <= last]
-    centres = np.array([world_map.keyframes[k].centre for k in ids]).reshape(-1, 3)
-    return float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
-
-
-def correction_size(correction: np.ndarray) -> tuple[float, float]:
-    """How far [m] and how much [deg] a correction ``T_c_new_c_old`` (4, 4) moves and turns a keyframe."""
-    return float(np.linalg.norm(correction[:3, 3])), float(np.degrees(rotation_angle(correction[:3, :3])))
+    return polyline_length(np.array([world_map.keyframes[k].centre for k in ids]).reshape(-1, 3))
 
 
 def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> bool:
     """Whether a keyframe's correction ``T_c_new_c_old`` (4, 4) could be drift over ``path`` [m] (module docstring)."""
-    translation, angle = correction_size(correction)
+    translation, angle = motion_size(correction)
     return translation <= config.max_drift_ratio * path + 1.0 and angle <= config.max_drift_deg
 
 

@@ -173,7 +173,7 @@ class Map:
             if dynamic[feature] or not kind.alive[landmark] or keyframe.id in kind.observers[landmark]:
                 continue
             existing = int(ids[feature])
-            if existing < 0 or not kind.alive[existing]:
+            if existing < 0:
                 self.add_observations(kind, keyframe, np.array([feature]), np.array([landmark]))
             elif keep_matched:
                 self.replace_landmark(kind, existing, landmark)

@@ -71,7 +71,7 @@ import numpy as np
 
 from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, rotation_angle, transform_points
+from pld_slam.geometry.se3 import inverse, motion_size, transform_points
 from pld_slam.optim.observations import (
     LineObservations,
     ObservationMasks,
@@ -190,10 +190,8 @@ def motion_model_distance(T_c_r: np.ndarray, T_c_r_predicted: np.ndarray, config
     """How far a motion lies from the prediction, in units of the model's expected error
     (module docstring): the larger of translation / ``motion_prior_m`` and rotation /
     ``motion_prior_deg`` of ``T_c_r @ inverse(T_c_r_predicted)``."""
-    difference = T_c_r @ inverse(T_c_r_predicted)
-    translation = float(np.linalg.norm(difference[:3, 3])) / config.dynamic.motion_prior_m
-    rotation = np.degrees(rotation_angle(difference[:3, :3])) / config.dynamic.motion_prior_deg
-    return max(translation, rotation)
+    translation, rotation = motion_size(T_c_r @ inverse(T_c_r_predicted))
+    return max(translation / config.dynamic.motion_prior_m, rotation / config.dynamic.motion_prior_deg)
 
 
 def predicted_motion(camera: StereoCamera, T_c_r_predicted: np.ndarray, points: PointObservations, n_matches: int,
