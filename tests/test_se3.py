@@ -129,3 +129,10 @@ def test_adjoint_moves_a_twist_between_frames():
     T = se3_exp(rng.normal(0.0, 1.0, 6))
     xi = rng.normal(0.0, 0.5, 6)
     np.testing.assert_allclose(T @ se3_exp(xi) @ inverse(T), se3_exp(se3.se3_adjoint(T) @ xi), atol=1e-12)
+
+
+def test_motion_size_is_the_translation_length_and_the_rotation_angle_in_degrees():
+    T = se3.make_pose(se3.so3_exp(np.array([0.0, 0.0, np.radians(30.0)])), np.array([3.0, 4.0, 0.0]))
+    metres, degrees = se3.motion_size(T)
+    assert np.isclose(metres, 5.0) and np.isclose(degrees, 30.0)
+    assert se3.motion_size(inverse(T))[1] == pytest.approx(30.0)
