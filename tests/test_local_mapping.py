@@ -25,7 +25,7 @@ from map_fixtures import (
 
 from pld_slam.config import Config, load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.geometry.se3 import transform_points
+from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.synth import write_sequence
@@ -213,6 +213,19 @@ def sighted(sightings: dict[str, list[str]], frame: int, marks: str) -> tuple[np
     landmark of each kind ("points", "lines"), a character per frame."""
     return tuple(np.array([k for k, seen in enumerate(sightings[kind]) if seen[frame] in marks], dtype=np.int64)
                  for kind in ("points", "lines"))
+
+
+def test_fusion_tests_a_line_in_both_images_as_the_solvers_measure_it():
+    """A segment moved along the viewing rays keeps its left-image projection; the right image
+    shows its wrong depth, and fusion refuses it."""
+    mapping = local_mapping()
+    keyframe = keyframe_seeing(mapping, lines=range(N_LINES))
+    truth = LINES_W.reshape(-1, 2, 3)
+    centre = inverse(keyframe.T_c_w)[:3, 3]
+    farther = centre + 2.0 * (truth - centre)  # the same rays, twice as deep
+    features = np.arange(N_LINES)
+    assert mapping._line_reprojects(keyframe, truth, features).all()
+    assert not mapping._line_reprojects(keyframe, farther, features).any()
 
 
 def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_should_see_it_is_culled():

@@ -88,8 +88,8 @@ a method below:
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
    keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
    theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`, within the
-   frame-to-frame descriptor bounds) and a
-   chi-square test on the reprojection (stereo point error, or line vertical error);
+   frame-to-frame descriptor bounds) and a chi-square test on the reprojection (the
+   stereo point error, or the line vertical error in both images, as the solvers measure them);
    a match to a feature without a landmark adds an observation, a match to a feature with
    another landmark fuses the two (the one with more observers stays).
 5. Local BA (`pld_slam.mapping.local_ba`), which drops the observations it finds outliers.
@@ -132,14 +132,13 @@ from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
 from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
-from pld_slam.optim.line_reprojection import line_vertical_error
-from pld_slam.optim.observations import LineObservations, WhitenedRows
+from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF
+from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF
 from pld_slam.timing import StageClock
 from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
 from pld_slam.tracking.matching import FrameMatches
-from pld_slam.tracking.observations import point_observations
+from pld_slam.tracking.observations import line_observations, point_observations
 
 _SECOND_NEIGHBOURS = 5
 """Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
@@ -392,12 +391,12 @@ class LocalMapping:
 
     def _line_reprojects(self, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray) -> np.ndarray:
         """Whether each line (K, 2, 3) reprojects onto its matched line (K,) of ``keyframe`` within the
-        chi-square bound."""
-        detected = keyframe.features.lines.endpoints[features]
-        error = line_vertical_error(self._camera, keyframe.T_c_w, geometry[:, 0], geometry[:, 1],
-                                    detected[:, :2], detected[:, 2:])
-        chi2 = np.sum((error.residual / self._config.tracking.line_sigma_px) ** 2, axis=1)
-        return error.valid & (chi2 <= CHI2_95_2DOF)
+        chi-square bound of its vertical error (left and right image, as the solvers measure it)."""
+        observed = line_observations(self._camera, geometry, keyframe.features.lines, features, self._config)
+        rows = WhitenedRows.of(PointObservations.empty(), observed, LineObservations.empty())
+        evaluation = rows.evaluate(self._camera, keyframe.T_c_w, keyframe.T_c_w, MIN_DEPTH)
+        _, vertical_chi2, _ = rows.chi2(evaluation)
+        return rows.line_inliers(vertical_chi2, CHI2_95_4DOF, CHI2_95_2DOF)
 
     def _cull_keyframes(self, keyframe: KeyFrame) -> tuple[int, ...]:
         """Step 6: remove covisible keyframes whose landmarks other keyframes see enough."""
