@@ -14,8 +14,8 @@ until one passes; then the loop is corrected:
    (``mnCorrectedReference``) so that step 4 does not move it again; we move only the
    landmarks the group is the reference of, which needs no record: a landmark referenced
    outside the group (on the loop side, or a current-side keyframe too little covisible to
-   be in the group) stays, and step 4 moves it once, with its reference keyframe. Moving
-   it in step 1 too moved it by the correction twice. Only neighbours from the current side move
+   be in the group) stays, and step 4 moves it once, with its reference keyframe (moved
+   in step 1 as well, it was corrected twice). Only neighbours from the current side move
    (ids after the candidate's plus ``loop.exclude_recent_keyframes``): near the end of a
    loop, tracking may already have linked the current keyframe to a few keyframes of the
    loop's start, and moving those with it moved the first keyframe by the whole
