@@ -1,5 +1,6 @@
-"""`LoopClosing`'s correction of a verified loop on a hand-made chain of keyframes: which keyframes
-and landmarks move, and that no landmark is corrected twice (`pld_slam.loop.loop_closing`)."""
+"""`LoopClosing`'s correction of a verified loop on a hand-made chain of keyframes: every landmark moves
+once, with its reference keyframe, its viewing direction turning with it, and the loop side's landmarks
+are projected into the moved keyframes (`pld_slam.loop.loop_closing`)."""
 
 import dataclasses
 from types import SimpleNamespace
@@ -39,8 +40,8 @@ def chain_map() -> Map:
 
 def close_loop(world_map: Map, correction: np.ndarray, matched: dict[int, int] | None = None,
                local_mapping: LocalMapping | None = None) -> None:
-    """Close the loop last keyframe -> keyframe 0, the geometric check moving the last keyframe by the
-    world motion ``correction`` (4, 4) and matching its features to the loop side's points as ``matched``
+    """Close the loop last keyframe -> keyframe 0, the geometric check placing the last keyframe at
+    ``T_c_w @ correction`` ((4, 4)) and matching its features to the loop side's points as ``matched``
     (feature: point id; none by default)."""
     local_mapping = local_mapping or LocalMapping(world_map, CAMERA, CONFIG)
     loop_closing = LoopClosing(world_map, local_mapping, CAMERA, CONFIG)
