@@ -11,9 +11,10 @@ from map_fixtures import CAMERA, camera_at, make_keyframe, random_descriptors, s
 from pld_slam.config import Config
 from pld_slam.geometry.se3 import se3_exp, transform_points
 from pld_slam.loop.loop_closing import LoopClosing
-from pld_slam.loop.verify import GeometricCheck
+from pld_slam.loop.verify import GeometricCheck, around, present_landmarks
 from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
+from pld_slam.tracking.local_map import local_map_of
 
 N_KEYFRAMES, SHARED = 12, 20
 """Keyframe k observes points ``SHARED*k .. SHARED*k + 2*SHARED - 1``: it shares SHARED with each neighbour in
@@ -41,15 +42,18 @@ def chain_map() -> Map:
 def close_loop(world_map: Map, correction: np.ndarray, matched: dict[int, int] | None = None,
                local_mapping: LocalMapping | None = None) -> None:
     """Close the loop last keyframe -> keyframe 0, the geometric check placing the last keyframe at
-    ``T_c_w @ correction`` ((4, 4)) and matching its features to the loop side's points as ``matched``
-    (feature: point id; none by default)."""
+    ``T_c_w @ correction`` ((4, 4)) against the candidate's local map (as `geometric_check` takes it)
+    and matching its features to the loop side's points as ``matched`` (feature: point id; none by
+    default)."""
     local_mapping = local_mapping or LocalMapping(world_map, CAMERA, CONFIG)
     loop_closing = LoopClosing(world_map, local_mapping, CAMERA, CONFIG)
     current, candidate = world_map.keyframes[N_KEYFRAMES - 1], world_map.keyframes[0]
     point_ids = np.full(len(current.point_ids), -1)
     point_ids[list((matched or {}).keys())] = list((matched or {}).values())
     found = SimpleNamespace(point_ids=point_ids, line_ids=np.full(0, -1))
-    check = GeometricCheck(T_c_w=current.T_c_w @ correction, matches=50, inliers=50, tracking=found)
+    local_map = local_map_of(world_map, around(world_map, candidate), present_landmarks(world_map, current))
+    check = GeometricCheck(T_c_w=current.T_c_w @ correction, matches=50, inliers=50, tracking=found,
+                           local_map=local_map)
     loop_closing._close(current, candidate, check)
 
 
@@ -86,7 +90,7 @@ def test_a_landmark_outside_the_moved_group_turns_its_viewing_direction_with_its
 
 def test_the_loop_side_landmarks_the_current_side_did_not_observe_are_projected_into_the_moved_group():
     """Fusing the check's inliers makes the current keyframe covisible with the candidate; the landmarks
-    to project are those of the candidate's local map before that (else none would be left)."""
+    projected are still all of the check's local map (those of keyframes 0 and 1)."""
     world_map = chain_map()
     local_mapping = LocalMapping(world_map, CAMERA, CONFIG)
     projected = []

@@ -60,12 +60,10 @@ from pld_slam.loop.pose_graph import (
 )
 from pld_slam.loop.verify import (
     GeometricCheck,
-    around,
     geometric_check,
     lc_rat,
     path_length,
     plausible_drift,
-    present_landmarks,
     relative_motion,
     same_place,
 )
@@ -75,7 +73,6 @@ from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
-from pld_slam.tracking.local_map import local_map_of
 
 
 @dataclass(frozen=True)
@@ -229,9 +226,8 @@ class LoopClosing:
         correction_m, correction_deg = motion_size(check.T_c_w @ keyframe.T_w_c)
         group = [keyframe.id, *(k for k in self.map.covisibility.neighbours(keyframe.id)
                                 if k > candidate.id + self._config.loop.exclude_recent_keyframes)]
-        loop_side = local_map_of(self.map, around(self.map, candidate), present_landmarks(self.map, keyframe))
         self._move_rigidly(group, inverse(check.T_c_w) @ keyframe.T_c_w)
-        fused = self._fuse(keyframe, check, group, (loop_side.points.ids, loop_side.lines.ids))
+        fused = self._fuse(keyframe, check, group)
         self._loop_edges.append(_LoopEdge(keyframe.id, candidate.id, keyframe.T_c_w @ candidate.T_w_c))
         graph_result, n_edges = self._optimise(edges, before)
         for kind in self.map.kinds:
@@ -255,21 +251,19 @@ class LoopClosing:
             keyframe = self.map.keyframes[keyframe_id]
             keyframe.T_c_w = keyframe.T_c_w @ inverse(world_motion)
 
-    def _fuse(
-        self, keyframe: KeyFrame, check: GeometricCheck, group: list[int], loop_side: tuple[np.ndarray, np.ndarray]
-    ) -> int:
+    def _fuse(self, keyframe: KeyFrame, check: GeometricCheck, group: list[int]) -> int:
         """Step 2: join the two ends of the loop; returns the observations added or fused.
 
-        ``loop_side`` are the point and line ids of the candidate's local map the current side did not
-        observe, taken before the inliers are fused (after, the keyframe is covisible with the
-        candidate's neighbourhood, and none would be left to project).
+        The landmarks projected are those of the check's local map, taken before the inliers
+        are fused: taken after, the keyframe is covisible with the candidate's neighbourhood,
+        and none would be left to project.
         """
         found = check.tracking
         fused = 0
         for kind, loop_ids in zip(self.map.kinds, (found.point_ids, found.line_ids)):
             features = np.flatnonzero(loop_ids >= 0)
             fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
-        for kind, ids in zip(self.map.kinds, loop_side):
+        for kind, ids in zip(self.map.kinds, (check.local_map.points.ids, check.local_map.lines.ids)):
             fused += self._local_mapping.fuse(kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids)
         for keyframe_id in group:
             self.map.attach_to_tree(self.map.keyframes[keyframe_id])

@@ -76,6 +76,7 @@ from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.tracking.local_map import (
+    LocalMap,
     LocalMapTracking,
     ReferenceMatches,
     local_map_of,
@@ -95,12 +96,15 @@ class GeometricCheck:
     T_c_w : (4, 4) the current keyframe's pose in the candidate's map.
     matches, inliers : point and line matches of the local-map solve, and its inliers.
     tracking : the local-map solve (landmark of each inlier feature: the loop's fusion uses them).
+    local_map : the map it was solved against: the landmarks the candidate and its covisible
+        neighbours observe but the current side does not (the loop's fusion projects them).
     """
 
     T_c_w: np.ndarray
     matches: int
     inliers: int
     tracking: LocalMapTracking
+    local_map: LocalMap
 
     @property
     def inlier_ratio(self) -> float:
@@ -128,6 +132,7 @@ def geometric_check(
         matches=tracking.point_matches + tracking.line_matches,
         inliers=tracking.tracked_landmarks,
         tracking=tracking,
+        local_map=local_map,
     )
 
 

@@ -353,6 +353,7 @@ class _BundleRows:
         """The observations passing their chi-square tests (`chi2_inliers`)."""
         return chi2_inliers(self.rows, *self.rows.chi2(evaluation), self.horizontal_eligible, options)
 
+
 def _solve(
     camera: StereoCamera,
     every_row: _BundleRows,
