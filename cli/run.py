@@ -108,7 +108,7 @@ def disparity_offset_rows(estimate: dict | None) -> list[tuple[str, str]]:
     """The report row of the disparity-offset self-calibration (`pld_slam.stereo_calibration`); none when off."""
     if estimate is None:
         return []
-    basis = f"{estimate['pairs']} frame pairs, {estimate['ms'] / 1e3:.1f} s"
+    basis = f"{estimate['pairs']} frame pairs, frame gap {estimate['frame_gap']}, {estimate['ms'] / 1e3:.1f} s"
     if estimate["used"]:
         return [("disparity offset", f"{estimate['offset_px']:+.3f} px (sigma {estimate['sigma_px']:.3f}, {basis})")]
     return [("disparity offset", f"not changed: {estimate['reason']} ({basis})")]

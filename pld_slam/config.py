@@ -64,8 +64,12 @@ class CalibrationConfig:
     )
     anchors: int = _param(12, "places spread over the sequence whose three frames give frame pairs", 1)
     min_anchors: int = _param(
-        6, "fewest anchors with a pair pose for an estimate (a sequence has at most a third of its frames)", 2
+        6, "fewest anchors with a pair pose for an estimate (an anchor takes 2 * gap + 1 frames of its own)", 2
     )
+    pair_motion_baselines: float = _param(
+        5.0, "an anchor's frames are this far apart [stereo baselines of camera motion]: sets the frame gap", 0.0
+    )
+    max_frame_gap: int = _param(5, "largest frame gap between an anchor's frames (pairs must still match)", 1)
     max_offset_px: float = _param(1.0, "the offset is searched in [-this, +this] [px]", 0.1)
     max_sigma_px: float = _param(
         0.1, "the estimate is used only when its standard deviation is under this [px]", 0.0

@@ -13,7 +13,7 @@ from pld_slam.datasets.calibration import stereo_camera_from_projections
 from pld_slam.frontend.lines import detect_image_lines, match_stereo_lines
 from pld_slam.frontend.points import detect_image_points, stereo_match_indices
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.stereo_calibration import calibrated_camera, estimate_disparity_offset
+from pld_slam.stereo_calibration import _anchored_pairs, calibrated_camera, estimate_disparity_offset, frame_gap
 from pld_slam.synth import write_sequence
 
 N_FRAMES = 40
@@ -87,11 +87,11 @@ def test_the_front_end_removes_the_camera_offset_from_point_and_line_disparities
 def test_the_offset_of_right_images_shifted_by_a_known_amount_is_found(street, shift_px):
     shifted = dataclasses.replace(street, rectifier=right_shifted_left(shift_px))
     estimate = estimate_disparity_offset(shifted, load_config())
-    assert estimate.pairs >= 30
+    assert estimate.pairs >= 20
     assert estimate.sigma_px < 0.06
     # The shifted right images measure disparities 0.387 px apart from the plain ones (the
-    # warp's interpolation blurs them); on this 40-frame street the estimates were 0.42 and
-    # -0.29 px, and 0.05 px (not used) for the plain images.
+    # warp's interpolation blurs them); on this 40-frame street (8 anchors, frame gap 2) the
+    # estimates were 0.40 and -0.34 px, and 0.035 px (not used) for the plain images.
     assert estimate.used == (shift_px != 0.0)
     if shift_px:
         assert estimate.offset_px == pytest.approx(shift_px, abs=0.15)
@@ -108,3 +108,29 @@ def test_a_camera_that_never_moves_leaves_the_offset_alone(street):
 def test_switched_off_there_is_no_estimate(street):
     config = load_config(overrides=["calibration.disparity_offset=false"])
     assert calibrated_camera(street, config) == (street.camera, None)
+
+
+def test_anchors_are_spread_frames_a_gap_apart_and_share_no_frame():
+    pairs = _anchored_pairs(40, 12, 2)
+    frames_of = {}
+    for first, second, anchor in pairs:
+        frames_of.setdefault(anchor, set()).update((first, second))
+    assert len(frames_of) == 8  # 40 frames hold 8 anchors of 5
+    assert all(sorted(frames) == [min(frames), min(frames) + 2, min(frames) + 4] for frames in frames_of.values())
+    assert sum(len(frames) for frames in frames_of.values()) == len(set().union(*frames_of.values()))
+    assert min(min(frames) for frames in frames_of.values()) == 0
+    assert max(max(frames) for frames in frames_of.values()) == 39
+
+
+def test_the_frame_gap_follows_the_camera_motion_in_baselines(street):
+    # The street's camera drives 0.8 m per frame with a 0.5 m baseline: 1.6 baselines.
+    config = load_config(overrides=["calibration.min_anchors=3"])
+    assert frame_gap(street, {}, config) == 3  # 5 baselines
+    near = load_config(overrides=["calibration.min_anchors=3", "calibration.pair_motion_baselines=2.0"])
+    assert frame_gap(street, {}, near) == 1
+    assert frame_gap(street, {}, load_config()) == 2  # 6 anchors of 5 frames fill 30 of the 40 frames
+
+
+def test_a_camera_that_never_moves_gets_the_widest_gap(street):
+    standing = dataclasses.replace(street, frames=street.frames.select(np.zeros(N_FRAMES, dtype=np.int64)))
+    assert frame_gap(standing, {}, load_config(overrides=["calibration.min_anchors=3"])) == 5
