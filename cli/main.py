@@ -6,12 +6,21 @@ for ``--verbose`` and exit code 1. Ctrl-C prints ``interrupted`` (with what a ru
 and where, `pld_slam_cli.run.RunInterrupted`) and exits with 130. ``--verbose`` prints
 the traceback before that line and changes nothing else, the exit code included.
 
+SIGTERM (``kill``, a batch scheduler's time limit, a container stopping) stops a command
+the way Ctrl-C does, so that a run still writes what it has: the handler raises
+`KeyboardInterrupt`, and the line says ``terminated`` with exit code 143 (128 + 15, what
+a shell reports for a process ended by SIGTERM). Without it SIGTERM ends the process at
+once and a run leaves only its partial trajectory file. It also reaches a process whose
+SIGINT is ignored (started in the background by a shell or ``nohup``), so it is how
+`pld_slam.report.cells` stops a cell at its time limit.
+
 The commands are imported when one is invoked, not with this module: their imports
 (OpenCV, numba, evo, matplotlib) take seconds, and a Ctrl-C during them would otherwise
 escape as a Python traceback before the error policy above is in place.
 """
 
 import importlib
+import signal
 import sys
 import traceback
 
@@ -23,6 +32,7 @@ from pld_slam.errors import PldSlamError
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 128 + signal.SIGTERM
 
 _COMMANDS = {
     "run": "pld_slam_cli.run:run_command",
@@ -56,7 +66,8 @@ class _ReportingGroup(click.Group):
         except PldSlamError as error:
             _report(ctx, f"error: {error}", EXIT_USER_ERROR)
         except KeyboardInterrupt as interrupt:
-            _report(ctx, " ".join(filter(None, ("interrupted", str(interrupt)))), EXIT_INTERRUPTED)
+            stopped, code = ("terminated", EXIT_TERMINATED) if _terminated else ("interrupted", EXIT_INTERRUPTED)
+            _report(ctx, " ".join(filter(None, (stopped, str(interrupt)))), code)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
         except Exception as error:  # a bug: keep the one-line promise, point at --verbose
@@ -81,6 +92,18 @@ def cli(ctx: click.Context, verbose: bool) -> None:
     ctx.ensure_object(dict)["verbose"] = verbose
 
 
+_terminated = False
+"""Whether SIGTERM (not Ctrl-C) raised the `KeyboardInterrupt` being handled."""
+
+
+def _stop_on_sigterm(signum: int, frame) -> None:
+    """SIGTERM handler: stop as Ctrl-C does (module docstring)."""
+    global _terminated
+    _terminated = True
+    raise KeyboardInterrupt
+
+
 def main() -> None:
     """Console-script entry point."""
+    signal.signal(signal.SIGTERM, _stop_on_sigterm)
     sys.exit(cli(prog_name="pld-slam"))

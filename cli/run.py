@@ -231,9 +231,9 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     first camera; --formats adds trajectory.euroc.csv or leaves one out), summary.json
     (frames, failures, timing, real-time factor, ATE/RPE when the sequence has ground
     truth, the config and its sources), loops.csv and trajectory.png.
-    Ctrl-C or an error mid-run still writes the trajectory so far; while the run goes,
-    trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run is
-    killed, deleted once the final files are written). The files of an earlier run in
+    Ctrl-C, SIGTERM or an error mid-run still writes the trajectory so far; while the run
+    goes, trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run
+    is killed, deleted once the final files are written). The files of an earlier run in
     the output folder are deleted first; other files there are kept.
     """
     sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))

@@ -251,10 +251,13 @@ _child_extract: Callable[[int], ExtractedFrame] | None = None
 
 
 def _become_extractor(extract: Callable[[int], ExtractedFrame], parent: int) -> None:
-    """Start of the forked child: keep ``extract``, leave Ctrl-C to the parent, and die with the
-    parent (process id ``parent``) when it is killed, instead of waiting for work forever."""
+    """Start of the forked child: keep ``extract``, leave Ctrl-C to the parent, end at once on
+    SIGTERM (the parent's handler, inherited through the fork, would raise in the middle of
+    an extraction and send the exception back as the frame), and die with the parent
+    (process id ``parent``) when it is killed, instead of waiting for work forever."""
     global _child_extract
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _die_with_parent()
     if os.getppid() != parent:  # killed before that
         os._exit(1)

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -23,7 +24,7 @@ from pld_slam.synth.writer import write_sequence
 from pld_slam.system import System
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
-from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_USER_ERROR, cli
+from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
 from pld_slam_cli.run import skipped_frame_rows
 
 JSON_KEYS = {
@@ -271,28 +272,53 @@ def test_a_finished_run_leaves_no_partial_trajectory(synthetic_sequence, tmp_pat
     assert (out / "trajectory.tum.txt").is_file() and not (out / "trajectory.partial.tum.txt").exists()
 
 
-def test_a_run_killed_hard_keeps_the_poses_tracked_so_far(tmp_path):
+def run_until_poses(tmp_path, n_poses: int) -> tuple[subprocess.Popen, Path, Path]:
+    """``pld-slam run`` on a 30-frame street in a child process, returned once it has tracked
+    ``n_poses`` frames: the child (stderr piped), its sequence and its output folder."""
     sequence = tmp_path / "seq"
     write_sequence(sequence, "static", 30, size=(320, 240))
     out = tmp_path / "run"
-    partial = out / "trajectory.partial.tum.txt"
     child = subprocess.Popen([sys.executable, "-m", "pld_slam_cli", "run", str(sequence), "--out", str(out)],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300.0
+    while pose_rows(out / "trajectory.partial.tum.txt") < n_poses and child.poll() is None:
+        if time.monotonic() > deadline:
+            child.kill()
+        time.sleep(0.05)
+    return child, sequence, out
+
+
+def test_a_run_killed_hard_keeps_the_poses_tracked_so_far(tmp_path):
+    child, sequence, out = run_until_poses(tmp_path, 4)
+    partial = out / "trajectory.partial.tum.txt"
     try:
-        deadline = time.monotonic() + 300.0
-        while pose_rows(partial) < 4 and child.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
         assert child.poll() is None, "the run ended before it could be killed"
         child.send_signal(signal.SIGKILL)
     finally:
         child.kill()
-        child.wait()
+        child.communicate()
     assert not (out / "trajectory.tum.txt").exists()  # killed before the end: only the partial file
     estimate = read_tum(partial)  # every row a valid TUM row (a half-written last row would fail here)
     truth = open_sequence(sequence).groundtruth
     assert len(estimate) >= 4 and np.array_equal(estimate.timestamps, truth.timestamps[: len(estimate)])
     assert np.allclose(estimate.poses[0], np.eye(4), atol=1e-9)
     np.testing.assert_allclose(estimate.positions, truth.positions[: len(estimate)], atol=0.05)
+
+
+def test_sigterm_mid_run_writes_the_trajectory_so_far_as_ctrl_c_does(tmp_path):
+    child, _, out = run_until_poses(tmp_path, 4)
+    try:
+        assert child.poll() is None, "the run ended before it could be stopped"
+        child.send_signal(signal.SIGTERM)
+        _, stderr = child.communicate(timeout=300)
+    finally:
+        child.kill()
+    assert child.returncode == EXIT_TERMINATED, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert stderr == (f"terminated after {summary['frames']} of 30 frames; wrote trajectory.kitti.txt, "
+                      f"trajectory.tum.txt, summary.json, loops.csv, trajectory.png in {out}/\n")
+    assert 4 <= len(read_tum(out / "trajectory.tum.txt")) == summary["frames"] < 30
+    assert not (out / "trajectory.partial.tum.txt").exists()
 
 
 def pose_rows(path) -> int:

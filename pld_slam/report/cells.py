@@ -37,8 +37,8 @@ from pld_slam.report.suite import Suite
 from pld_slam.run_config import load_run_config
 
 INTERRUPT_GRACE_SECONDS = 30.0
-"""After its time limit a cell gets Ctrl-C (it then writes its trajectory so far) and this
-long to exit before it is killed."""
+"""After its time limit a cell gets SIGTERM, which ``pld-slam run`` handles as Ctrl-C (it
+then writes its trajectory so far), and this long to exit before it is killed."""
 
 STATUSES = ("ok", "stopped", "failed")
 """A cell's outcome: ``ok`` (the run completed), ``stopped`` (the run ended early by itself,
@@ -193,8 +193,8 @@ def execute_cell(spec: CellSpec, timeout: float | None = None) -> CellOutcome:
     spec : CellSpec
         The cell.
     timeout : float or None
-        Time limit [s]: the child then gets Ctrl-C (and writes what it has), and is killed
-        `INTERRUPT_GRACE_SECONDS` later if still running.
+        Time limit [s]: the child then gets SIGTERM (and writes what it has, as after
+        Ctrl-C), and is killed `INTERRUPT_GRACE_SECONDS` later if still running.
     """
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="pld-slam-cell-") as scratch:
@@ -215,7 +215,7 @@ def _run_child(command: list[str], timeout: float | None) -> tuple[int, str, boo
         _, stderr = child.communicate(timeout=timeout)
         return child.returncode, stderr, False
     except subprocess.TimeoutExpired:
-        child.send_signal(signal.SIGINT)
+        child.send_signal(signal.SIGTERM)  # not SIGINT, which a shell's background job ignores
         try:
             _, stderr = child.communicate(timeout=INTERRUPT_GRACE_SECONDS)
         except subprocess.TimeoutExpired:
