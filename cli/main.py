@@ -8,8 +8,9 @@ the traceback before that line and changes nothing else, the exit code included.
 
 SIGTERM (``kill``, a batch scheduler's time limit, a container stopping) stops a command
 the way Ctrl-C does, so that a run still writes what it has: the handler raises
-`KeyboardInterrupt`, and the line says ``terminated`` with exit code 143 (128 + 15, what
-a shell reports for a process ended by SIGTERM). Without it SIGTERM ends the process at
+`pld_slam.errors.Terminated` (a `KeyboardInterrupt`); the line and ``summary.json``'s
+``stop_reason`` say ``terminated``, and the exit code is 143 (128 + 15, what a shell
+reports for a process ended by SIGTERM). Without it SIGTERM ends the process at
 once and a run leaves only its partial trajectory file. It also reaches a process whose
 SIGINT is ignored (started in the background by a shell or ``nohup``), so it is how
 `pld_slam.report.cells` stops a cell at its time limit.
@@ -27,7 +28,7 @@ import traceback
 import click
 
 from pld_slam import __version__
-from pld_slam.errors import PldSlamError
+from pld_slam.errors import PldSlamError, Terminated
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
@@ -66,7 +67,8 @@ class _ReportingGroup(click.Group):
         except PldSlamError as error:
             _report(ctx, f"error: {error}", EXIT_USER_ERROR)
         except KeyboardInterrupt as interrupt:
-            stopped, code = ("terminated", EXIT_TERMINATED) if _terminated else ("interrupted", EXIT_INTERRUPTED)
+            terminated = isinstance(interrupt, Terminated) or isinstance(interrupt.__cause__, Terminated)
+            stopped, code = ("terminated", EXIT_TERMINATED) if terminated else ("interrupted", EXIT_INTERRUPTED)
             _report(ctx, " ".join(filter(None, (stopped, str(interrupt)))), code)
         except (click.exceptions.Exit, click.ClickException, click.Abort):
             raise
@@ -92,15 +94,9 @@ def cli(ctx: click.Context, verbose: bool) -> None:
     ctx.ensure_object(dict)["verbose"] = verbose
 
 
-_terminated = False
-"""Whether SIGTERM (not Ctrl-C) raised the `KeyboardInterrupt` being handled."""
-
-
 def _stop_on_sigterm(signum: int, frame) -> None:
     """SIGTERM handler: stop as Ctrl-C does (module docstring)."""
-    global _terminated
-    _terminated = True
-    raise KeyboardInterrupt
+    raise Terminated
 
 
 def main() -> None:

@@ -175,19 +175,19 @@ def run_and_write(
     def progress(indices):
         return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
 
-    interrupted = False
+    interrupted = None
     try:
         system.run(max_frames=max_frames, progress=progress)
-    except KeyboardInterrupt:
-        interrupted = True  # raised again below, once the files are written
+    except KeyboardInterrupt as interrupt:
+        interrupted = interrupt  # raised again below, once the files are written
     finally:
         partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
         written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
                                     title=sequence.name, formats=formats)
         partial.discard()
-    if interrupted:
-        raise RunInterrupted(interrupted_message(summary, n_frames, out, written))
+    if interrupted is not None:
+        raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
     return summary
 
 

@@ -6,6 +6,11 @@ prints that line and exits with code 2.
 """
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised by the ``pld-slam`` command's handler: a run stops as on Ctrl-C
+    (`KeyboardInterrupt`) and its summary says ``terminated``."""
+
+
 class PldSlamError(Exception):
     """Base of every error pld-slam raises on purpose."""
 

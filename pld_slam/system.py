@@ -46,7 +46,7 @@ import numpy as np
 from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
-from pld_slam.errors import ConfigError
+from pld_slam.errors import ConfigError, Terminated
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoFeatures
@@ -315,8 +315,8 @@ class System:
                 for index in progress(range(n_frames)):
                     self.process_frame(index)
                 self._finish()
-        except KeyboardInterrupt:
-            self.result.stop_reason = "interrupted"
+        except KeyboardInterrupt as interrupt:
+            self.result.stop_reason = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
             raise
         except Exception as error:
             self.result.stop_reason = f"{type(error).__name__}: {error}"

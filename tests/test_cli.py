@@ -318,6 +318,7 @@ def test_sigterm_mid_run_writes_the_trajectory_so_far_as_ctrl_c_does(tmp_path):
     assert stderr == (f"terminated after {summary['frames']} of 30 frames; wrote trajectory.kitti.txt, "
                       f"trajectory.tum.txt, summary.json, loops.csv, trajectory.png in {out}/\n")
     assert 4 <= len(read_tum(out / "trajectory.tum.txt")) == summary["frames"] < 30
+    assert summary["stop_reason"] == "terminated"
     assert not (out / "trajectory.partial.tum.txt").exists()
 
 

@@ -21,7 +21,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.errors import ConfigError, PldSlamError
+from pld_slam.errors import ConfigError, PldSlamError, Terminated
 from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
@@ -273,7 +273,8 @@ def test_an_unreadable_image_is_skipped_as_lost_and_the_run_goes_on(folder, tmp_
 
 @pytest.mark.parametrize(
     ("error", "reason"),
-    [(KeyboardInterrupt(), "interrupted"), (RuntimeError("disk on fire"), "RuntimeError: disk on fire")],
+    [(KeyboardInterrupt(), "interrupted"), (Terminated(), "terminated"),
+     (RuntimeError("disk on fire"), "RuntimeError: disk on fire")],
 )
 def test_a_run_stopped_mid_way_reraises_and_keeps_the_frames_before(sequence, config, full_run, monkeypatch,
                                                                     error, reason):
