@@ -72,8 +72,13 @@ def make_kitti_odometry(root: Path, n: int = 3) -> Path:
     return folder
 
 
-def make_kitti_raw(root: Path, n: int = 3, metres_east_per_frame: float = 1.0) -> Path:
-    """A raw drive with n frames whose OXTS unit drives east (yaw 0) at a constant step.
+def make_kitti_raw(
+    root: Path, n: int = 3, metres_east_per_frame: float = 1.0, east: list[float] | None = None,
+    packet_times: list[str] | None = None,
+) -> Path:
+    """A raw drive with n frames, one a second, whose OXTS unit drives east (yaw 0) at a
+    constant step, or to the positions ``east`` [m] if given; with ``oxts/timestamps.txt``
+    if ``packet_times`` are given.
 
     The calibration puts the camera looking along the IMU's x axis (forward), so the
     camera moves along its own z axis.
@@ -102,9 +107,12 @@ def make_kitti_raw(root: Path, n: int = 3, metres_east_per_frame: float = 1.0) -
     write_lines(date / "calib_imu_to_velo.txt", [f"R: {numbers(np.eye(3))}", "T: 0.5 0 0.2"])
     lat0, lon0 = 49.0, 8.4
     degrees_per_metre = 180.0 / (np.cos(np.deg2rad(lat0)) * EARTH_RADIUS * np.pi)
+    east = [i * metres_east_per_frame for i in range(n)] if east is None else east
     for i in range(n):
-        packet = [lat0, lon0 + i * metres_east_per_frame * degrees_per_metre, 110.0, 0, 0, 0] + [0] * 24
+        packet = [lat0, lon0 + east[i] * degrees_per_metre, 110.0, 0, 0, 0] + [0] * 24
         write_lines(folder / "oxts" / "data" / f"{i:010d}.txt", [" ".join(f"{v:.15g}" for v in packet)])
+    if packet_times is not None:
+        write_lines(folder / "oxts" / "timestamps.txt", packet_times)
     return folder
 
 
@@ -418,6 +426,16 @@ def test_kitti_raw_generated_drive_moves_forward_along_camera_z(tmp_path):
     assert np.allclose(sequence.groundtruth.poses[:, :3, :3], np.eye(3), atol=1e-9)
 
 
+def test_kitti_raw_groundtruth_is_interpolated_from_the_packet_times_to_the_image_times(tmp_path):
+    # Packets 1 m then 2 m apart; packet 1 was taken 40 ms after image 1, so at image 1's
+    # time the unit was 1 / 1.04 of the way from packet 0 to packet 1.
+    times = ["2011-01-01 00:00:00.100000001", "2011-01-01 00:00:01.140000001", "2011-01-01 00:00:02.100000001"]
+    folder = make_kitti_raw(tmp_path, n=3, east=[0.0, 1.0, 3.0], packet_times=times)
+    groundtruth = open_sequence(folder).groundtruth
+    np.testing.assert_allclose(groundtruth.positions, [[0, 0, 0], [0, 0, 1.0 / 1.04], [0, 0, 3.0]], atol=1e-6)
+    np.testing.assert_array_equal(groundtruth.timestamps, open_sequence(folder).timestamps)
+
+
 def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
     folder = make_kitti_raw(tmp_path)
     for packet in (folder / "oxts" / "data").iterdir():
@@ -440,6 +458,10 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
          "timestamps.txt:2: not a time"),
         (remove("oxts/data/0000000002.txt"), "oxts/data: 2 OXTS packets for 3 frames"),
         (rewrite("oxts/data/0000000001.txt", "49.0 8.4"), "0000000001.txt: OXTS packet has 2 fields"),
+        (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001", "2011-01-01 00:00:01.160000001",
+                 "2011-01-01 00:00:02.100000001"),
+         "oxts/timestamps.txt: packet 1 is 60 ms from image 1, more than half a frame"),
+        (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001"), "oxts/timestamps.txt: 1 times for 3"),
         (empty("image_01/data"), "image_01/data: no .png images"),
     ],
 )

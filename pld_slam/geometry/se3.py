@@ -217,3 +217,18 @@ def transform_points(T_a_b: np.ndarray, p_b: np.ndarray) -> np.ndarray:
     if T_a_b.ndim == 3:
         return np.einsum("nij,nj->ni", T_a_b[:, :3, :3], p_b) + T_a_b[:, :3, 3]
     return p_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+
+
+def interpolate_poses(times: np.ndarray, T: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Poses (M, 4, 4) at times ``at`` (M,) of a trajectory ``T`` (N, 4, 4) sampled at
+    increasing ``times`` (N,), N >= 2: between the two samples around each time, the
+    translation linearly and the rotation along the geodesic (constant angular rate);
+    before the first and after the last sample, extrapolated from the nearest two."""
+    i = np.clip(np.searchsorted(times, at) - 1, 0, len(times) - 2)
+    fraction = (at - times[i]) / (times[i + 1] - times[i])
+    R0, R1 = T[i, :3, :3], T[i + 1, :3, :3]
+    R = R0 @ so3_exp(fraction[:, None] * so3_log(np.swapaxes(R0, -1, -2) @ R1))
+    poses = np.tile(np.eye(4), (len(at), 1, 1))
+    poses[:, :3, :3] = R
+    poses[:, :3, 3] = T[i, :3, 3] + fraction[:, None] * (T[i + 1, :3, 3] - T[i, :3, 3])
+    return poses
