@@ -29,7 +29,8 @@ SKIPPED_FRAMES_SHOWN = 3
 
 
 class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C stopped a run after its files were written; the message says how far it got and what it wrote."""
+    """Ctrl-C or SIGTERM stopped a run after its files were written; the message says how far it got and what
+    it wrote."""
 
 
 def skipped_frame_rows(skipped: list[dict]) -> list[tuple[str, str]]:

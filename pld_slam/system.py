@@ -305,9 +305,10 @@ class System:
             progress: Callable[[Iterable[int]], Iterable[int]] = iter) -> RunResult:
         """Process the frames in order (the first ``max_frames`` if given).
 
-        ``progress`` wraps the frame indices (e.g. ``tqdm``). Ctrl-C or an error stops the
-        loop with `result` holding every frame processed so far and ``stop_reason`` set;
-        the exception is re-raised for the caller to report.
+        ``progress`` wraps the frame indices (e.g. ``tqdm``). Ctrl-C, SIGTERM (as
+        `pld_slam.errors.Terminated`) or an error stops the loop with `result` holding every
+        frame processed so far and ``stop_reason`` set (``interrupted``, ``terminated``, or the
+        error); the exception is re-raised for the caller to report.
         """
         n_frames = len(self.sequence) if max_frames is None else min(max_frames, len(self.sequence))
         try:

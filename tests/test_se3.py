@@ -139,15 +139,21 @@ def test_motion_size_is_the_translation_length_and_the_rotation_angle_in_degrees
 
 
 def test_interpolate_poses_is_exact_for_constant_velocities_and_extrapolates_at_the_ends():
-    # Constant linear velocity (world) and angular velocity: what the interpolation assumes.
-    w, v = np.array([0.1, -0.3, 0.2]), np.array([1.0, 0.5, -2.0])
+    # Constant linear velocity (world) and angular velocity (body): what the interpolation
+    # assumes. The start orientation makes the rotations' order matter.
+    w, v, start = np.array([0.1, -0.3, 0.2]), np.array([1.0, 0.5, -2.0]), se3.so3_exp(np.array([0.4, 1.1, -0.7]))
 
     def pose(t: float) -> np.ndarray:
         T = np.eye(4)
-        T[:3, :3], T[:3, 3] = se3.so3_exp(w * t), v * t
+        T[:3, :3], T[:3, 3] = start @ se3.so3_exp(w * t), v * t
         return T
 
     times = np.array([0.0, 0.1, 0.25, 0.3])
     at = np.array([-0.02, 0.0, 0.05, 0.2, 0.3, 0.33])
     interpolated = se3.interpolate_poses(times, np.array([pose(t) for t in times]), at)
     np.testing.assert_allclose(interpolated, [pose(t) for t in at], atol=1e-12)
+
+
+def test_interpolate_poses_needs_two_samples():
+    with pytest.raises(ValueError, match="two samples"):
+        se3.interpolate_poses(np.array([0.0]), np.eye(4)[None], np.array([0.0]))

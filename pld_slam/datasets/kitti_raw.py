@@ -23,8 +23,9 @@
   extrapolated). On drive 0005 (3.3 m/s) that moved the poses by 1.0 cm RMS and brought
   our trajectory's RPE from 0.0335 to 0.0299 m and 0.064 to 0.051 deg, its ATE from
   0.0881 to 0.0871 m: the interpolated poses agree better with the images. Without
-  ``oxts/timestamps.txt`` packet i keeps image i's time; a packet more than half a frame
-  from its image raises, naming the file.
+  ``oxts/timestamps.txt`` (or with a single frame) packet i keeps image i's time. A
+  packet more than half a frame (at KITTI's nominal 10 Hz) from its image means the file
+  does not belong to the drive: opening the drive raises, naming the file.
 """
 
 from pathlib import Path
@@ -122,8 +123,9 @@ def _groundtruth(
 
 def _at_image_times(T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarray) -> np.ndarray:
     """OXTS poses (N, 4, 4) moved from their packets' times (``times_path``) to the image
-    times (N,) [s] (module docstring); unchanged when ``times_path`` does not exist."""
-    if not times_path.is_file():
+    times (N,) [s] (module docstring); unchanged when ``times_path`` does not exist or there
+    is a single frame (nothing to interpolate between)."""
+    if not times_path.is_file() or len(image_times) < 2:
         return T_w_imu
     packet_times = read_times(times_path, len(image_times), parse_line=datetime_seconds)
     gap = np.abs(packet_times - image_times)
