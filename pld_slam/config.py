@@ -363,6 +363,10 @@ class LoopConfig:
     bow_consistency: int = _param(
         3, "bow: consecutive keyframes whose candidate groups must overlap (ORB-SLAM2's group consistency)", 0
     )
+    bow_covisible_check: bool = _param(
+        True, "bow: a candidate not yet consistent in time is verified too, and accepted when the pose found also "
+        "holds in bow_consistency of the keyframe's covisible keyframes (ORB-SLAM3)"
+    )
     exclude_recent_keyframes: int = _param(
         20, "the keyframes inserted just before a new one are never its loop candidates", 0
     )

@@ -1,18 +1,40 @@
 """Loop candidates of both detectors on constructed maps, and the verification tests on constructed values."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
-from map_fixtures import camera_features, make_keyframe, random_descriptors, scene_points, simple_features
+from map_fixtures import (
+    CAMERA,
+    camera_at,
+    camera_features,
+    empty_features,
+    make_keyframe,
+    random_descriptors,
+    scene_points,
+    simple_features,
+    world_features,
+)
 
-from pld_slam.config import GgsConfig, LoopConfig
+from pld_slam.config import Config, GgsConfig, LoopConfig
 from pld_slam.frontend.ggs import ggs_and_place_descriptors
-from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
+from pld_slam.geometry.se3 import inverse, make_pose, so3_exp, transform_points
 from pld_slam.loop.bow_detector import BowDatabase, BowDetector
 from pld_slam.loop.ggs_detector import GgsDetector, ggs_loop_candidates
-from pld_slam.loop.verify import lc_rat, plausible_drift, same_place
+from pld_slam.loop.verify import (
+    GeometricCheck,
+    around,
+    covisible_support,
+    lc_rat,
+    plausible_drift,
+    present_landmarks,
+    same_place,
+)
 from pld_slam.loop.vocabulary import bow_score, build_vocabulary
 from pld_slam.mapping.map import Map
+from pld_slam.optim.pose_only import PoseOnlyOptions
+from pld_slam.tracking.local_map import local_map_of
 
 WIDTH, STEP = 160, 12
 """Each keyframe sees a WIDTH-pixel window of one long panorama, STEP pixels on from the last one's."""
@@ -161,3 +183,50 @@ def test_a_loop_joins_keyframes_at_the_same_place_only():
     assert not same_place(camera(0.0, 0.0), camera(8.5, 0.0), CONFIG)  # recognised from 8.5 m back
     assert not same_place(camera(0.0, 0.0), camera(0.0, 0.0, x=3.5), CONFIG)  # the next lane
     assert not same_place(camera(0.0, 0.0), camera(0.0, 40.0), CONFIG)
+
+
+# --- ORB-SLAM3's check in the covisibility window (bag of words) ---------------------------
+
+COVISIBLE_CONFIG = dataclasses.replace(Config(), loop=dataclasses.replace(Config().loop, exclude_recent_keyframes=5))
+CURRENT_SIDE = range(10, 15)
+"""Ids of the revisiting keyframes, the last the current one; the loop side is keyframe 0."""
+
+
+def revisit_map(neighbours_see_the_place: bool) -> tuple[Map, GeometricCheck]:
+    """Keyframe 0 maps 80 scene points. Keyframes 10-14 come back to the place, 0.3 m and 4 degrees
+    of yaw apart, but tracking drifted (2 m, 10 degrees of yaw): their own landmarks are copies of
+    the scene points moved by the drift, which they share (covisible). Keyframe 14's geometric check
+    found its true pose in keyframe 0's map. Its neighbours see the scene points too, or (a place
+    that only keyframe 14 mistakes for keyframe 0's) other points with other descriptors."""
+    world_map = Map(covisibility_min_shared=20)
+    scene, descriptors = scene_points(80, seed=3), random_descriptors(80, seed=4)
+    drift = make_pose(so3_exp(np.array([0.0, np.deg2rad(10.0), 0.0])), np.array([2.0, 0.0, 0.0]))  # T_map_world
+    loop_side = world_map.points.add(scene, descriptors, 0)
+    current_side = world_map.points.add(transform_points(drift, scene), descriptors, 10)
+    world_map.points.normal[:] = [0.0, 0.0, 1.0]  # seen along the world z axis
+    world_map.points.max_distance[:] = np.tile(np.linalg.norm(scene, axis=1), 2)  # keypoints at octave 0
+    elsewhere, other_descriptors = scene_points(80, seed=5), random_descriptors(80, seed=6)
+    world_map.add_keyframe(make_keyframe(0, world_features(camera_at([0.0, 0.0, 0.0]), scene, descriptors),
+                                         camera_at([0.0, 0.0, 0.0]), point_ids=loop_side))
+    for k in range(1, CURRENT_SIDE[0]):  # the drive between the two visits: nothing in common with either
+        world_map.add_keyframe(make_keyframe(k, empty_features(), camera_at([0.0, 0.0, -10.0 * k])))
+    for k in CURRENT_SIDE:
+        yaw = so3_exp(np.array([0.0, np.deg2rad(4.0 * (k - 12)), 0.0]))
+        T_c_w = inverse(make_pose(yaw, np.array([0.3 * (k - 12), 0.0, 0.0])))
+        sees_the_place = neighbours_see_the_place or k == CURRENT_SIDE[-1]
+        features = (world_features(T_c_w, scene, descriptors) if sees_the_place
+                    else world_features(T_c_w, elsewhere, other_descriptors))
+        world_map.add_keyframe(make_keyframe(k, features, T_c_w @ inverse(drift), point_ids=current_side))
+    current = world_map.keyframes[CURRENT_SIDE[-1]]
+    check = GeometricCheck(T_c_w=T_c_w, matches=80, inliers=80, tracking=None,
+                           local_map=local_map_of(world_map, around(world_map, world_map.keyframes[0]),
+                                                  present_landmarks(world_map, current)))
+    return world_map, check
+
+
+@pytest.mark.parametrize("neighbours_see_the_place", [True, False])
+def test_the_covisible_keyframes_confirm_a_loop_only_where_they_see_the_candidates_place(neighbours_see_the_place):
+    world_map, check = revisit_map(neighbours_see_the_place)
+    support = covisible_support(world_map, world_map.keyframes[CURRENT_SIDE[-1]], world_map.keyframes[0], check,
+                                CAMERA, COVISIBLE_CONFIG, PoseOnlyOptions(), needed=3)
+    assert support == (3 if neighbours_see_the_place else 0)

@@ -21,6 +21,16 @@ selection follows ORB-SLAM2's ``KeyFrameDatabase::DetectLoopCandidates`` and
    consistent. This is the detector's consistency test (`pld_slam.loop.detection`);
    the geometric check and the rest are shared with GGS, which verifies the first
    ``loop.candidates`` consistent candidates.
+5. Consistency in the covisibility window (ORB-SLAM3's ``DetectCommonRegionsFromBoW``;
+   ``loop.bow_covisible_check``): a candidate not (yet) consistent in time is verified as
+   well, after the consistent ones, and accepted only when, besides every test of
+   verification, the pose found for the keyframe also holds in ``loop.bow_consistency`` of
+   its covisible keyframes (`pld_slam.loop.verify.covisible_support`). Group consistency
+   alone needs four consecutive keyframes whose top-scored groups overlap; where a revisit
+   is short, or the old place wins the scoring only when the camera is already there, it
+   is over before the chain is: on the synthetic ``loop`` (seed 3) the start keyframe is
+   the best candidate only in the last two keyframes (2.5 m and 0 m from it), and the
+   loop was missed; ORB-SLAM3 takes the evidence from the keyframes already in the map.
 """
 
 from dataclasses import dataclass

@@ -5,7 +5,9 @@ For each new keyframe: its candidates from the configured detector (``loop.detec
 `pld_slam.loop.ggs_detector`, the paper's, or `pld_slam.loop.bow_detector`, the
 bag-of-words rival), each that passed its detector's consistency test verified
 (`pld_slam.loop.verify`: geometric check, drift gate, lc_rat), at most ``loop.candidates``,
-until one passes; then the loop is corrected:
+until one passes (bag of words with ``loop.bow_covisible_check``: the others too, after
+them, confirmed by the keyframe's covisible keyframes, `pld_slam.loop.bow_detector`
+step 5); then the loop is corrected:
 
 1. The current keyframe takes the pose the geometric check found in the candidate's map,
    and its covisible neighbours move with it, rigidly (ORB-SLAM2's corrected Sim(3)s; SE(3)
@@ -60,6 +62,7 @@ from pld_slam.loop.pose_graph import (
 )
 from pld_slam.loop.verify import (
     GeometricCheck,
+    covisible_support,
     geometric_check,
     lc_rat,
     path_length,
@@ -88,10 +91,13 @@ class LoopCandidate:
     matches, inliers, inlier_ratio, motion, lc_rat : the geometric check and stage 1 (NaN
         where not reached).
     correction_m, correction_deg : the correction the loop would make to the keyframe.
+    covisible : bow candidates not consistent in time (``loop.bow_covisible_check``): the
+        covisible keyframes that confirmed the check's pose (`pld_slam.loop.verify.covisible_support`);
+        NaN where not reached.
     accepted : whether the loop was closed with it.
     reason : ``"accepted"``, the test it failed (``"consistency"``, the detector's; ``"pnp"``: fewer
         than ``loop.min_inliers`` descriptor matches or no PnP pose; ``"inliers"``, ``"drift"``,
-        ``"distance"``, ``"lc_rat"``), or ``"not verified"`` (consistent, but ``loop.candidates``
+        ``"distance"``, ``"lc_rat"``, ``"covisible"``), or ``"not verified"`` (``loop.candidates``
         others were verified first).
     """
 
@@ -113,6 +119,7 @@ class LoopCandidate:
     lc_rat: float
     correction_m: float
     correction_deg: float
+    covisible: float
     accepted: bool
     reason: str
 
@@ -169,9 +176,13 @@ class LoopClosing:
         self.queries.append((keyframe.id, keyframe.timestamp))
         closed = None
         verified = 0
-        for detection in self.detector.detect(keyframe):
+        detections = self.detector.detect(keyframe)
+        if self._checks_covisible:  # consistent in time first: they need no more evidence
+            detections = sorted(detections, key=lambda d: not d.consistent)
+        for detection in detections:
             candidate = self.map.keyframes[detection.candidate]
-            verify = closed is None and detection.consistent and verified < self._config.loop.candidates
+            verify = (closed is None and (detection.consistent or self._checks_covisible)
+                      and verified < self._config.loop.candidates)
             verified += verify
             record, check = self._verify(keyframe, candidate, detection, verify)
             self.candidates.append(record)
@@ -180,22 +191,28 @@ class LoopClosing:
                 self.loops.append(closed)
         return closed
 
+    @property
+    def _checks_covisible(self) -> bool:
+        """Whether candidates not yet consistent in time are verified too (bag of words with
+        ``loop.bow_covisible_check``, `pld_slam.loop.bow_detector` step 5)."""
+        return self._config.loop.detector == "bow" and self._config.loop.bow_covisible_check
+
     def _verify(
         self, keyframe: KeyFrame, candidate: KeyFrame, detection: Detection, verify: bool
     ) -> tuple[LoopCandidate, GeometricCheck | None]:
         """The candidate's record, and its geometric check when it was verified and passed every test."""
         config = self._config.loop
         values = dict(matches=np.nan, inliers=np.nan, inlier_ratio=np.nan, motion=np.nan, lc_rat=np.nan,
-                      correction_m=np.nan, correction_deg=np.nan)
-        check, reason = None, "consistency" if not detection.consistent else "not verified"
+                      correction_m=np.nan, correction_deg=np.nan, covisible=np.nan)
+        check, reason = None, "not verified" if detection.consistent or self._checks_covisible else "consistency"
         if verify:
             check = geometric_check(self.map, keyframe, candidate, self._camera, self._config, self._pose_options)
             reason = "pnp"
         if check is not None:
             motion = relative_motion(check.T_c_w, candidate.T_c_w)
             score = lc_rat(check.inlier_ratio, motion, config)
-            values = dict(matches=check.matches, inliers=check.inliers, inlier_ratio=check.inlier_ratio,
-                          motion=motion, lc_rat=score)
+            values |= dict(matches=check.matches, inliers=check.inliers, inlier_ratio=check.inlier_ratio,
+                           motion=motion, lc_rat=score)
             correction = check.T_c_w @ keyframe.T_w_c
             drift = plausible_drift(correction, path_length(self.map, candidate.id, keyframe.id), config)
             values["correction_m"], values["correction_deg"] = motion_size(correction)
@@ -207,8 +224,13 @@ class LoopClosing:
                 reason = "distance"
             elif score < config.lc_rat_threshold:
                 reason = "lc_rat"
-            else:
+            elif detection.consistent:
                 reason = "accepted"
+            else:
+                values["covisible"] = float(covisible_support(self.map, keyframe, candidate, check, self._camera,
+                                                              self._config, self._pose_options,
+                                                              config.bow_consistency))
+                reason = "accepted" if values["covisible"] >= config.bow_consistency else "covisible"
         record = LoopCandidate(
             keyframe=keyframe.id, frame=keyframe.frame_index, time=keyframe.timestamp, candidate=candidate.id,
             candidate_frame=candidate.frame_index, candidate_time=candidate.timestamp, score=detection.score,

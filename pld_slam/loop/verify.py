@@ -136,6 +136,49 @@ def geometric_check(
     )
 
 
+COVISIBLE_WINDOW = 10
+"""Covisible keyframes of the current one tried by `covisible_support`, strongest first (ORB-SLAM3's
+``nNumCovisibles``)."""
+
+
+def covisible_support(
+    world_map: Map, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck, camera: StereoCamera,
+    config: Config, pose_options: PoseOnlyOptions, needed: int,
+) -> int:
+    """How many of the keyframe's covisible keyframes confirm the loop ``check`` found, up to ``needed``.
+
+    ORB-SLAM3's verification in the covisibility window (``LoopClosing::DetectCommonRegionsFromBoW``):
+    the pose the check found for ``keyframe`` is carried to each of its `COVISIBLE_WINDOW`
+    strongest covisible keyframes through their tracked relative pose, and the candidate's map
+    (the check's local map) is tracked into that keyframe from there; a keyframe confirms
+    the loop with at least half ``loop.min_inliers`` inliers (ORB-SLAM3 asks 30 projection
+    matches of each covisible keyframe against 50-80 of the current one). Only keyframes of
+    the current side count: ids after the candidate's plus ``loop.exclude_recent_keyframes``,
+    and not covisible with the candidate (after an earlier loop or a fusion a later keyframe
+    can be, and would confirm the candidate's map from its own side). The evidence ORB-SLAM2
+    waits for from the next keyframes (group consistency) is taken from keyframes already in
+    the map, with no delay. ORB-SLAM3 also carries a partial confirmation (fewer than
+    ``needed``) to the next keyframes; we do not, because group consistency already
+    carries a candidate that persists.
+    """
+    T_w_c = keyframe.T_w_c
+    candidate_side = around(world_map, candidate)
+    found = 0
+    for other in world_map.covisibility.neighbours(keyframe.id, COVISIBLE_WINDOW):
+        if found >= needed:
+            break
+        if other <= candidate.id + config.loop.exclude_recent_keyframes or other in candidate_side:
+            continue
+        frame = world_map.keyframes[other]
+        T_j_w = frame.T_c_w @ T_w_c @ check.T_c_w
+        tracking = track_local_map(
+            camera, T_j_w, check.local_map, frame.features, frame.point_dynamic, frame.line_dynamic, config,
+            pose_options, ReferenceMatches.empty(),
+        )
+        found += tracking.tracked_landmarks >= config.loop.min_inliers / 2
+    return found
+
+
 def around(world_map: Map, keyframe: KeyFrame) -> tuple[int, ...]:
     """A keyframe's id and its covisible neighbours' ids."""
     return (keyframe.id, *world_map.covisibility.neighbours(keyframe.id))
