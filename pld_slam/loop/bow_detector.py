@@ -31,6 +31,9 @@ selection follows ORB-SLAM2's ``KeyFrameDatabase::DetectLoopCandidates`` and
    is over before the chain is: on the synthetic ``loop`` (seed 3) the start keyframe is
    the best candidate only in the last two keyframes (2.5 m and 0 m from it), and the
    loop was missed; ORB-SLAM3 takes the evidence from the keyframes already in the map.
+   The price is a geometric check of up to ``loop.candidates`` candidates at almost every
+   keyframe: the loop stage's median went from 17.3 to 21.6 ms per keyframe on that
+   sequence (the whole run from 44 to 50 s, the loop's correction included).
 """
 
 from dataclasses import dataclass
