@@ -181,8 +181,7 @@ class LoopClosing:
             detections = sorted(detections, key=lambda d: not d.consistent)
         for detection in detections:
             candidate = self.map.keyframes[detection.candidate]
-            verify = (closed is None and (detection.consistent or self._checks_covisible)
-                      and verified < self._config.loop.candidates)
+            verify = closed is None and self._verifiable(detection) and verified < self._config.loop.candidates
             verified += verify
             record, check = self._verify(keyframe, candidate, detection, verify)
             self.candidates.append(record)
@@ -197,6 +196,11 @@ class LoopClosing:
         ``loop.bow_covisible_check``, `pld_slam.loop.bow_detector` step 5)."""
         return self._config.loop.detector == "bow" and self._config.loop.bow_covisible_check
 
+    def _verifiable(self, detection: Detection) -> bool:
+        """Whether ``detection`` may be verified: it passed its detector's consistency test, or
+        the covisible keyframes will be asked instead (`_checks_covisible`)."""
+        return detection.consistent or self._checks_covisible
+
     def _verify(
         self, keyframe: KeyFrame, candidate: KeyFrame, detection: Detection, verify: bool
     ) -> tuple[LoopCandidate, GeometricCheck | None]:
@@ -204,7 +208,7 @@ class LoopClosing:
         config = self._config.loop
         values = dict(matches=np.nan, inliers=np.nan, inlier_ratio=np.nan, motion=np.nan, lc_rat=np.nan,
                       correction_m=np.nan, correction_deg=np.nan, covisible=np.nan)
-        check, reason = None, "not verified" if detection.consistent or self._checks_covisible else "consistency"
+        check, reason = None, "not verified" if self._verifiable(detection) else "consistency"
         if verify:
             check = geometric_check(self.map, keyframe, candidate, self._camera, self._config, self._pose_options)
             reason = "pnp"
