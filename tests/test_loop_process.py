@@ -55,11 +55,14 @@ def scripted(monkeypatch):
             calls["checked"].append(candidate.id)
             return checks[candidate.id]
 
+        def close(self, keyframe, candidate, check):
+            calls["closed"].append(candidate.id)
+            return "closed"
+
         monkeypatch.setattr(loop_closing, "make_detector", lambda world_map, config: Detector())
         monkeypatch.setattr(loop_closing, "geometric_check", geometric_check)
         monkeypatch.setattr(loop_closing, "covisible_support", lambda *args: support)
-        monkeypatch.setattr(LoopClosing, "_close",
-                            lambda self, keyframe, candidate, check: calls["closed"].append(candidate.id) or "closed")
+        monkeypatch.setattr(LoopClosing, "_close", close)
         world_map = Map(covisibility_min_shared=1)
         for k in range(CURRENT + 1):
             world_map.add_keyframe(make_keyframe(k, empty_features(), camera_at([0.05 * k, 0.0, 0.0])))
