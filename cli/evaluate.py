@@ -11,8 +11,13 @@ from pld_slam.eval import EvalResult, evaluate, plot_error_over_time, plot_traje
 from pld_slam.io.trajectory import FORMATS, detect_format, is_euroc_body_groundtruth, read_trajectory
 from pld_slam.trajectory import Trajectory
 
+SCALE_LABEL = "scale (sim3) / path"
+"""The label of `scale_text`'s row, in the ``eval`` and ``run`` tables alike."""
+
 _ROWS = (
     ("ATE RMSE", "ate_rmse_m", "m", "{:.4f}"),
+    ("ATE RMSE after Sim(3)", "ate_sim3_rmse_m", "m", "{:.4f}"),
+    (SCALE_LABEL, "sim3_scale", "", ""),
     ("ATE rotation RMSE", "ate_rot_rmse_deg", "deg", "{:.4f}"),
     ("RPE trans RMSE (1 frame)", "rpe_trans_rmse_m", "m", "{:.4f}"),
     ("RPE rot RMSE (1 frame)", "rpe_rot_rmse_deg", "deg", "{:.4f}"),
@@ -33,6 +38,21 @@ def coverage_note(n_matched: int | None, n_frames: int) -> str | None:
     return f"evaluated on {n_matched} of {n_frames} frames"
 
 
+def scale_text(sim3_scale: float | None, path_ratio: float | None) -> str:
+    """The estimate's scale in one line: ``1.0091 / 1.0089 (0.91 % long)``.
+
+    Both figures are the estimate's size over the ground truth's (`EvalResult`): the Sim(3)
+    scale, then the path-length ratio. The percentage is the Sim(3) scale's, which noise
+    does not lengthen as it does a path. ``n/a`` for a figure not computed (no ground
+    truth; for the path, a ground truth standing still).
+    """
+    if sim3_scale is None:
+        return "n/a"
+    path = "n/a" if path_ratio is None else f"{path_ratio:.4f}"
+    error_pct = 100.0 * (sim3_scale - 1.0)
+    return f"{sim3_scale:.4f} / {path} ({abs(error_pct):.2f} % {'long' if error_pct >= 0.0 else 'short'})"
+
+
 def format_result_table(result: EvalResult, n_estimated: int) -> str:
     """The metrics as an aligned two-column text table (None shows as n/a).
 
@@ -42,7 +62,10 @@ def format_result_table(result: EvalResult, n_estimated: int) -> str:
     lines = []
     for label, key, unit, fmt in _ROWS:
         value = values[key]
-        text = "n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip()
+        if key == "sim3_scale":
+            text = scale_text(value, values["path_ratio"])
+        else:
+            text = "n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip()
         lines.append(f"{label:<26}{text}")
     coverage = coverage_note(result.n_matched, n_estimated)
     if coverage:
@@ -107,8 +130,9 @@ def eval_command(gt: Path, est: Path, fmt: str, align: str, max_diff: float, as_
     """Compare the estimated trajectory EST with the ground truth GT.
 
     GT is a trajectory file (KITTI, TUM or EuRoC) or a sequence folder whose ground truth
-    pld-slam reads. Prints ATE RMSE, RPE, and the KITTI devkit t_rel / r_rel (on paths of
-    at least 100 m).
+    pld-slam reads. Prints ATE RMSE (as --align, and after Sim(3)), the estimate's scale
+    (Sim(3) scale and path-length ratio, estimate over ground truth: above 1 is too long),
+    RPE, and the KITTI devkit t_rel / r_rel (on paths of at least 100 m).
     """
     groundtruth, estimate, by_index = load_pair(gt, est, fmt)
     result = evaluate(groundtruth, estimate, align=align, by_index=by_index, max_diff=max_diff)

@@ -22,7 +22,7 @@ from pld_slam.run_config import load_run_config
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam_cli.config import config_files_option, set_option
-from pld_slam_cli.evaluate import coverage_note
+from pld_slam_cli.evaluate import SCALE_LABEL, coverage_note, scale_text
 
 SKIPPED_FRAMES_SHOWN = 3
 """How many skipped frames the run table names; summary.json lists them all."""
@@ -55,7 +55,8 @@ def format_run_table(summary: dict) -> str:
 
     Rows without a label continue the row above: the skipped frames named
     (`skipped_frame_rows`), and the frames the accuracy covers when not all
-    (`pld_slam_cli.evaluate.coverage_note`).
+    (`pld_slam_cli.evaluate.coverage_note`). The scale row is `eval`'s
+    (`pld_slam_cli.evaluate.scale_text`).
     """
 
     def number(value, fmt: str, unit: str) -> str:
@@ -69,6 +70,8 @@ def format_run_table(summary: dict) -> str:
         ("tracking failures", str(len(summary["tracking_failures"]))),
         *skipped_frame_rows(summary["skipped_frames"]),
         ("ATE RMSE", number(summary["ate_rmse_m"], "{:.4f}", "m")),
+        ("ATE RMSE after Sim(3)", number(summary["ate_sim3_rmse_m"], "{:.4f}", "m")),
+        (SCALE_LABEL, scale_text(summary["sim3_scale"], summary["path_ratio"])),
         ("RPE trans / rot (1 frame)", number(summary["rpe_trans_rmse_m"], "{:.4f}", "m")
          + " / " + number(summary["rpe_rot_rmse_deg"], "{:.4f}", "deg")),
         *([("", coverage)] if coverage else []),

@@ -24,12 +24,13 @@ from pld_slam.synth.writer import write_sequence
 from pld_slam.system import System
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
+from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
 from pld_slam_cli.run import skipped_frame_rows
 
 JSON_KEYS = {
-    "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
-    "r_rel_deg_per_100m", "n_matched",
+    "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
+    "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched",
 }
 
 
@@ -84,6 +85,21 @@ def test_eval_prints_the_table_and_json_with_the_documented_keys(synthetic_seque
     assert values["n_matched"] == len(truth)
     assert values["ate_rmse_m"] > 0.01
     assert values["t_rel_pct"] is None and values["r_rel_deg_per_100m"] is None
+
+
+def test_eval_shows_an_estimate_2_percent_too_long_on_the_scale_line_whatever_the_alignment(
+        synthetic_sequence, tmp_path):
+    truth = read_kitti(synthetic_sequence / "poses.txt")
+    longer = truth.poses.copy()
+    longer[:, :3, 3] = truth.positions[0] + 1.02 * (truth.positions - truth.positions[0])
+    estimate = tmp_path / "longer.kitti.txt"
+    write_kitti(estimate, Trajectory(truth.timestamps, longer))
+    for align in ("se3", "sim3", "none"):
+        output = run("eval", synthetic_sequence / "poses.txt", estimate, "--align", align).output
+        assert re.search(r"^scale \(sim3\) / path +1\.0200 / 1\.0200 \(2\.00 % long\)$", output, re.M), output
+        assert re.search(r"^ATE RMSE after Sim\(3\) +0\.0000 m$", output, re.M), output
+    assert scale_text(0.99, None) == "0.9900 / n/a (1.00 % short)"
+    assert scale_text(None, None) == "n/a"
 
 
 def test_eval_against_a_sequence_folder_stamps_a_kitti_estimate_with_frame_times(synthetic_sequence, tmp_path):
@@ -168,6 +184,8 @@ def test_run_writes_trajectories_summary_and_plot(synthetic_sequence, tmp_path):
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 4)
     assert result.exit_code == 0, result.output
     assert "ATE RMSE" in result.output and "total ms/frame" in result.output
+    assert re.search(r"^scale \(sim3\) / path +\d\.\d{4} / \d\.\d{4} \(\d+\.\d\d % (long|short)\)$",
+                     result.output, re.M)
     assert "loop ms/keyframe" in result.output and re.search(r"loops closed \(candidates\) +0 \(0\)", result.output)
     kitti = read_kitti(out / "trajectory.kitti.txt")
     assert len(kitti) == 4 and np.allclose(kitti.poses[0], np.eye(4))

@@ -74,6 +74,40 @@ def test_sim3_alignment_removes_a_scale_error_that_se3_cannot():
     assert fit_alignment(groundtruth, estimate, "sim3").scale == pytest.approx(2.0)
 
 
+def scaled_about_start(traj: Trajectory, factor: float) -> Trajectory:
+    """``traj`` with every position moved ``factor`` times as far from the first one."""
+    poses = traj.poses.copy()
+    poses[:, :3, 3] = traj.positions[0] + factor * (traj.positions - traj.positions[0])
+    return with_poses(traj, poses)
+
+
+@pytest.mark.parametrize("align", ["se3", "sim3", "none"])
+def test_an_estimate_1_percent_too_long_reads_1_01_in_sim3_scale_and_path_ratio_whatever_the_alignment(align):
+    """Scale and path ratio are the estimate's size over the truth's (> 1: too long), both
+    from the matched poses before the ATE's alignment; the Sim(3) ATE of a noise-free
+    estimate is 0."""
+    groundtruth = drive()
+    estimate = scaled_about_start(groundtruth, 1.01)
+    result = evaluate(groundtruth, with_poses(estimate, WORLD_CHANGE @ estimate.poses), align=align)
+    assert result.sim3_scale == pytest.approx(1.01, abs=1e-9)
+    assert result.path_ratio == pytest.approx(1.01, abs=1e-9)
+    assert result.ate_sim3_rmse_m == pytest.approx(0.0, abs=1e-9)
+    assert fit_alignment(groundtruth, estimate, "sim3").scale == pytest.approx(1.0 / 1.01, abs=1e-9)
+    shrunk = evaluate(groundtruth, scaled_about_start(groundtruth, 0.98), align=align)
+    assert (shrunk.sim3_scale, shrunk.path_ratio) == (pytest.approx(0.98, abs=1e-9), pytest.approx(0.98, abs=1e-9))
+
+
+def test_the_path_ratio_is_over_the_matched_poses_only_and_no_scale_is_read_off_a_ground_truth_at_rest():
+    groundtruth = drive()
+    half = scaled_about_start(groundtruth, 1.01).head(100)
+    assert evaluate(groundtruth, half, by_index=True).path_ratio == pytest.approx(1.01, abs=1e-9)
+    at_rest = Trajectory(np.arange(5.0), np.repeat(np.eye(4)[None], 5, axis=0))
+    jitter = at_rest.poses.copy()
+    jitter[:, :3, 3] = np.random.default_rng(0).normal(0.0, 0.01, (5, 3))
+    result = evaluate(at_rest, with_poses(at_rest, jitter))
+    assert result.path_ratio is None and result.sim3_scale is None
+
+
 def test_a_constant_per_frame_motion_error_is_the_per_frame_rpe():
     groundtruth = drive()
     error = make_pose(Rotation.from_rotvec([0.0, 0.002, 0.0]).as_matrix(), [0.03, 0.0, 0.04])
@@ -163,6 +197,9 @@ def test_short_path_has_no_kitti_drift_and_json_keys_are_fixed():
     assert list(result.as_dict()) == [
         "ate_rmse_m",
         "ate_rot_rmse_deg",
+        "ate_sim3_rmse_m",
+        "sim3_scale",
+        "path_ratio",
         "rpe_trans_rmse_m",
         "rpe_rot_rmse_deg",
         "t_rel_pct",

@@ -43,8 +43,8 @@ from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 12
 ACCURACY_KEYS = (
-    "ate_rmse_m", "ate_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg", "t_rel_pct",
-    "r_rel_deg_per_100m", "n_matched",
+    "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
+    "rpe_rot_rmse_deg", "t_rel_pct", "r_rel_deg_per_100m", "n_matched",
 )
 TRACKING_STAGES = {"matching", "filters", "pose", "dynamic", "local_map", "see_through"}
 

@@ -7,12 +7,17 @@ The steps, each public:
 2. `fit_alignment`: Umeyama alignment of the matched estimate positions onto the ground
    truth (``evo.core.geometry.umeyama_alignment``): SE(3), Sim(3) or none.
 3. `ate_errors` (evo ``APE``, translation part) and `relative_pose_errors` (evo ``RPE``).
-4. `evaluate`: all of the above plus the KITTI devkit drift (`kitti_devkit`), as an
+4. `evaluate`: all of the above plus the KITTI devkit drift (`kitti_devkit`) and the
+   estimate's scale (`Alignment.estimate_scale` of the Sim(3) fit, `path_ratio`), as an
    `EvalResult`.
 
-Every metric of `evaluate` is computed on the aligned estimate. RPE and the KITTI drift
-do not change under an SE(3) alignment; under Sim(3) they see the scale-corrected
-estimate, which is what one wants for a monocular run.
+Every error metric of `evaluate` is computed on the aligned estimate. RPE and the KITTI
+drift do not change under an SE(3) alignment; under Sim(3) they see the scale-corrected
+estimate, which is what one wants for a monocular run. The scale figures do not depend
+on ``align``: a stereo run's scale error (a path ~1 % too long on KITTI) must show
+whichever alignment the ATE used. Both read as the estimate's size over the truth's,
+above 1 for an estimate too long: the Umeyama scale (which takes the estimate onto the
+truth) is inverted for that.
 """
 
 from dataclasses import asdict, dataclass
@@ -44,6 +49,16 @@ class EvalResult:
         RMSE of the absolute rotation error [deg]: the angle of ``R_gt^T R_est`` per
         matched pose (evo APE ``rotation_angle_deg``) after `fit_orientation_alignment`
         (none with ``align="none"``).
+    ate_sim3_rmse_m : float
+        RMSE of the position error after the Sim(3) alignment [m], whatever ``align``:
+        what is left once the scale error is taken out.
+    sim3_scale : float or None
+        The estimate's size over the ground truth's by the Sim(3) alignment
+        (`Alignment.estimate_scale`: 1 / its Umeyama scale), whatever ``align``; 1.01 =
+        the estimate is 1 % too large. None when the ground truth stands at one point.
+    path_ratio : float or None
+        `path_ratio`: the estimate's path length over the ground truth's, over the matched
+        poses; None when the ground truth does not move.
     rpe_trans_rmse_m, rpe_rot_rmse_deg : float
         RMSE of the relative pose error between consecutive matched poses [m], [deg].
     t_rel_pct, r_rel_deg_per_100m : float or None
@@ -54,6 +69,9 @@ class EvalResult:
 
     ate_rmse_m: float
     ate_rot_rmse_deg: float
+    ate_sim3_rmse_m: float
+    sim3_scale: float | None
+    path_ratio: float | None
     rpe_trans_rmse_m: float
     rpe_rot_rmse_deg: float
     t_rel_pct: float | None
@@ -83,6 +101,16 @@ class Alignment:
         poses[:, :3, :3] = self.rotation @ traj.poses[:, :3, :3]
         poses[:, :3, 3] = self.scale * traj.positions @ self.rotation.T + self.translation
         return Trajectory(traj.timestamps, poses)
+
+    @property
+    def estimate_scale(self) -> float | None:
+        """The estimate's size over the ground truth's: 1 / `scale`; None for a `scale` of 0.
+
+        `scale` takes the estimate onto the ground truth, so an estimate 1 % too large has
+        1 / 1.01; this reads as `path_ratio` does, above 1 for an estimate too large. A
+        Sim(3) fit onto a ground truth standing at one point has scale 0.
+        """
+        return 1.0 / self.scale if self.scale > 0.0 else None
 
 
 IDENTITY = Alignment(rotation=np.eye(3), translation=np.zeros(3), scale=1.0)
@@ -201,17 +229,38 @@ def _first_pose_alignment(groundtruth: Trajectory, estimate: Trajectory, with_sc
     return Alignment(rotation, translation, float(scale))
 
 
-def _matched_and_aligned(
-    groundtruth: Trajectory, estimate: Trajectory, align: str, by_index: bool, max_diff: float
+def path_ratio(groundtruth: Trajectory, estimate: Trajectory) -> float | None:
+    """Path length of the estimate over the ground truth's; None when the ground truth does not move.
+
+    ``groundtruth`` and ``estimate`` are matched pose by pose (see `associate`): each path is
+    the sum of the distances between consecutive matched positions (`Trajectory.path_length`),
+    so poses only one of them has do not count. Noise lengthens a path, so on a short or
+    slow path the ratio reads above the scale error (the Sim(3) fit's
+    `Alignment.estimate_scale` does not).
+    """
+    truth = groundtruth.path_length()
+    return estimate.path_length() / truth if truth > 0.0 else None
+
+
+def _matched(
+    groundtruth: Trajectory, estimate: Trajectory, by_index: bool, max_diff: float
 ) -> tuple[Trajectory, Trajectory]:
-    """Matched ground truth and the matched estimate aligned onto it."""
-    _check_alignment_name(align)
+    """Matched ground truth and estimate (`associate`), at least 2 pairs of them."""
     gt, est = associate(groundtruth, estimate, by_index, max_diff)
     if len(gt) < 2:
         raise TrajectoryError(
             f"only {len(gt)} estimate pose(s) matched the ground truth; need at least 2 "
             f"(check the timestamps, max_diff = {max_diff} s, or match by index)"
         )
+    return gt, est
+
+
+def _matched_and_aligned(
+    groundtruth: Trajectory, estimate: Trajectory, align: str, by_index: bool, max_diff: float
+) -> tuple[Trajectory, Trajectory]:
+    """Matched ground truth and the matched estimate aligned onto it."""
+    _check_alignment_name(align)
+    gt, est = _matched(groundtruth, estimate, by_index, max_diff)
     return gt, fit_alignment(gt, est, align).apply(est)
 
 
@@ -219,6 +268,11 @@ def _absolute_error(groundtruth: Trajectory, estimate: Trajectory, relation: Pos
     ape = APE(relation)
     ape.process_data((_to_evo(groundtruth), _to_evo(estimate)))
     return ape
+
+
+def _absolute_rmse(groundtruth: Trajectory, estimate: Trajectory, relation: PoseRelation) -> float:
+    """RMSE of evo's APE of ``relation`` between matched poses, as they are (no alignment)."""
+    return float(_absolute_error(groundtruth, estimate, relation).get_statistic(StatisticsType.rmse))
 
 
 def ate_errors(
@@ -289,26 +343,31 @@ def evaluate(
     by_index: bool = False,
     max_diff: float = 0.01,
 ) -> EvalResult:
-    """ATE, per-frame RPE and KITTI drift of ``estimate`` against ``groundtruth``.
+    """ATE, per-frame RPE, KITTI drift and scale of ``estimate`` against ``groundtruth``.
 
     Parameters
     ----------
     groundtruth, estimate : Trajectory
         ``T_w_c`` poses; their world frames may differ (the alignment removes that).
     align : str
-        ``se3`` (default), ``sim3`` or ``none``; applied before every metric.
+        ``se3`` (default), ``sim3`` or ``none``; applied before every error metric but the
+        Sim(3) ATE. The scale figures are of the matched estimate before any alignment.
     by_index, max_diff
         How poses are matched; see `associate`.
     """
-    gt, est = _matched_and_aligned(groundtruth, estimate, align, by_index, max_diff)
+    _check_alignment_name(align)
+    gt, matched = _matched(groundtruth, estimate, by_index, max_diff)
+    est = fit_alignment(gt, matched, align).apply(matched)
     rpe_trans, rpe_rot = relative_pose_errors(gt, est)
     t_rel, r_rel = kitti_relative_errors(gt.poses, est.poses)
-    ate = _absolute_error(gt, est, PoseRelation.translation_part).get_statistic(StatisticsType.rmse)
     oriented = est if align == "none" else fit_orientation_alignment(gt, est).apply(est)
-    ate_rot = _absolute_error(gt, oriented, PoseRelation.rotation_angle_deg).get_statistic(StatisticsType.rmse)
+    sim3 = fit_alignment(gt, matched, "sim3")
     return EvalResult(
-        ate_rmse_m=float(ate),
-        ate_rot_rmse_deg=float(ate_rot),
+        ate_rmse_m=_absolute_rmse(gt, est, PoseRelation.translation_part),
+        ate_rot_rmse_deg=_absolute_rmse(gt, oriented, PoseRelation.rotation_angle_deg),
+        ate_sim3_rmse_m=_absolute_rmse(gt, sim3.apply(matched), PoseRelation.translation_part),
+        sim3_scale=sim3.estimate_scale,
+        path_ratio=path_ratio(gt, matched),
         rpe_trans_rmse_m=rpe_trans,
         rpe_rot_rmse_deg=rpe_rot,
         t_rel_pct=t_rel,
