@@ -12,8 +12,9 @@ A baseline is a JSON file::
       ]
     }
 
-A cell's sequence is one the package generates (``synthetic``: scenario, seed, frames; so
-every clone has it), one under the data folder ``$PLD_SLAM_DATA`` (``data``: a relative
+A cell's sequence is one the package generates (``synthetic``: scenario, seed, frames, and
+optionally ``"camera": "kitti"`` for KITTI's camera instead of the default one; so every
+clone has it), one under the data folder ``$PLD_SLAM_DATA`` (``data``: a relative
 path; the cell is skipped, saying so, where the folder is missing) or an absolute
 ``path``. A cell regresses when its run fails or its ATE exceeds the recorded one by more
 than ``relative`` x recorded + ``absolute_m`` (a cell may carry its own ``tolerance``):
@@ -37,6 +38,7 @@ from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.runner import run_cells
 from pld_slam.report.store import read_cell
 from pld_slam.report.suite import Suite, Variant, check_overrides
+from pld_slam.synth.scenarios import CAMERAS
 from pld_slam.synth.writer import ensure_sequence
 
 DEFAULT_TOLERANCE = {"relative": 0.10, "absolute_m": 0.001}
@@ -120,6 +122,8 @@ def _sequence_kind(reference, where: str) -> str:
         raise ConfigError(f"{where}: 'sequence' must hold exactly one of synthetic, data, path")
     if kinds[0] == "synthetic" and not all(isinstance(reference.get(k), int) for k in ("seed", "frames")):
         raise ConfigError(f"{where}: a synthetic sequence needs an integer 'seed' and 'frames'")
+    if kinds[0] == "synthetic" and reference.get("camera", "default") not in CAMERAS:
+        raise ConfigError(f"{where}: a synthetic sequence's 'camera' must be one of {', '.join(CAMERAS)}")
     return kinds[0]
 
 
@@ -132,7 +136,8 @@ def data_root() -> Path | None:
 def resolve_sequence(reference: dict, work: Path) -> tuple[Path | None, str]:
     """The folder of a cell's sequence (generating a synthetic one into ``work``), or None and why not."""
     if "synthetic" in reference:
-        return synthetic_sequence(work, reference["synthetic"], reference["seed"], reference["frames"]), ""
+        return synthetic_sequence(work, reference["synthetic"], reference["seed"], reference["frames"],
+                                  reference.get("camera", "default")), ""
     if "data" in reference:
         root = data_root()
         if root is None:
@@ -143,9 +148,11 @@ def resolve_sequence(reference: dict, work: Path) -> tuple[Path | None, str]:
     return (folder, "") if folder.is_dir() else (None, f"{folder} not found")
 
 
-def synthetic_sequence(work: Path, scenario: str, seed: int, frames: int) -> Path:
-    """The folder of a generated sequence, rendered into ``work/sequences`` unless already there."""
-    return ensure_sequence(Path(work) / "sequences" / f"{scenario}-seed{seed}-{frames}f", scenario, frames, seed)
+def synthetic_sequence(work: Path, scenario: str, seed: int, frames: int, camera: str = "default") -> Path:
+    """The folder of a generated sequence, rendered into ``work/sequences`` unless already there
+    (``SCENARIO-seedS-Nf``, plus ``-CAMERA`` for another camera than the default)."""
+    name = f"{scenario}-seed{seed}-{frames}f" + ("" if camera == "default" else f"-{camera}")
+    return ensure_sequence(Path(work) / "sequences" / name, scenario, frames, seed, camera)
 
 
 def baseline_cells(

@@ -225,6 +225,31 @@ def pole(height: float, arm_length: float, metal: int, sign_material: int | None
     return Quads.concat(parts)
 
 
+def gantry(span: float, clearance: float, metal: int, signs: Sequence[tuple[float, float, int]]) -> Quads:
+    """A sign gantry over a road in its object frame: two 0.5 m square legs at
+    ``x = +-span / 2``, a truss 1 m tall and 0.8 m deep across from ``clearance + 0.7``
+    [m] up, and sign plates 2.4 m tall, their bottom edge at ``clearance``, hung in front
+    of it facing -z (oncoming traffic), one per ``(x [m], width [m], material)``."""
+    metal_box = BoxMaterials(metal, metal, metal)
+    truss = clearance + 0.7
+    parts = [box(0.5, truss + 1.0, 0.5, metal_box).transformed(translation(x, 0.0, 0.0))
+             for x in (-0.5 * span, 0.5 * span)]
+    parts.append(box(span, 1.0, 0.8, metal_box).transformed(translation(0.0, -truss, 0.0)))
+    for x, width, material in signs:
+        plate = BoxMaterials(metal, material, metal)
+        parts.append(box(width, 2.4, 0.1, plate).transformed(translation(x, -clearance, -0.5)))
+    return Quads.concat(parts)
+
+
+def tree(trunk_height: float, crown_width: float, crown_height: float, bark: int, foliage: int) -> Quads:
+    """A tree in its object frame: a trunk 0.35 m square and ``trunk_height`` [m] tall
+    under a square crown ``crown_width`` wide and ``crown_height`` tall (boxes, so it
+    looks the same from every side)."""
+    trunk = box(0.35, trunk_height + 0.3, 0.35, BoxMaterials(bark, bark, bark))
+    crown = box(crown_width, crown_height, crown_width, BoxMaterials(foliage, foliage, foliage))
+    return Quads.concat([trunk, crown.transformed(translation(0.0, -trunk_height, 0.0))])
+
+
 STOREY_BAND_SPACING = 3.0
 """Height [m] between the flat bands that mark the storeys of a plain building."""
 

@@ -183,35 +183,58 @@ def asphalt_texels(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarr
     return texels
 
 
+def sealed_cracks(texels: np.ndarray, rng: np.random.Generator, count: int,
+                  per_m: tuple[float, float]) -> None:
+    """Draw ``count`` cracks sealed with dark bitumen into ``texels`` (H, W) in place: each a
+    random walk of 3-8 straight pieces of 20-60 cm, 2-3 cm wide; ``per_m`` = texels per
+    metre across and along."""
+    for _ in range(count):
+        point = rng.uniform((0.0, 0.0), texels.shape[::-1])
+        heading = rng.uniform(0.0, 2.0 * np.pi)
+        points = [point]
+        for _ in range(int(rng.integers(3, 9))):
+            heading += rng.uniform(-0.8, 0.8)
+            point = point + rng.uniform(0.2, 0.6) * np.array([np.cos(heading) * per_m[0], np.sin(heading) * per_m[1]])
+            points.append(point)
+        cv2.polylines(texels, [np.round(points).astype(np.int32)], False, float(rng.uniform(45.0, 60.0)),
+                      thickness=int(rng.integers(2, 4)))
+
+
 def asphalt(rng: np.random.Generator) -> Texture:
     """Plain asphalt without markings, 8 m x 8 m per tile (the open ground)."""
     return Texture(asphalt_texels(rng, (512, 512)), (8.0, 8.0))
 
 
 def road(rng: np.random.Generator, width_m: float, dashed_at: Sequence[float],
-         solid_at: Sequence[float]) -> Texture:
-    """A road across its whole width ``width_m`` and 8 m along, with lane markings.
+         solid_at: Sequence[float], cracks: int = 0, length_m: float = 8.0) -> Texture:
+    """A road across its whole width ``width_m`` and ``length_m`` along (8 m times a power
+    of two), with lane markings.
 
     Columns run across the road from its left edge, rows along it. ``dashed_at`` and
     ``solid_at`` are the lateral positions [m from the left edge] of 12 cm lines: dashed
-    ones 3 m painted, 5 m gap (one period per tile); solid ones 10 cm wide. A manhole
-    cover sits in one lane.
+    ones 3 m painted, 5 m gap (one period per 8 m); solid ones 10 cm wide. A manhole
+    cover sits in one lane. ``cracks`` sealed cracks (`sealed_cracks`) are drawn under
+    the paint: a tile longer than the markings' period keeps the asphalt from repeating
+    with them.
     """
-    shape = (512, 512)
+    per_m_along = 512 / 8.0
+    shape = (int(per_m_along * length_m), 512)
     texels = asphalt_texels(rng, shape)
+    if cracks:
+        sealed_cracks(texels, rng, cracks, (shape[1] / width_m, per_m_along))
     per_m_across = shape[1] / width_m
-    per_m_along = shape[0] / 8.0
     paint = 215.0
     for lateral in dashed_at:
         c = lateral * per_m_across
-        fill(texels, (c - 0.06 * per_m_across, 0, c + 0.06 * per_m_across, 3.0 * per_m_along), paint)
+        for start in np.arange(0.0, length_m, 8.0) * per_m_along:
+            fill(texels, (c - 0.06 * per_m_across, start, c + 0.06 * per_m_across, start + 3.0 * per_m_along), paint)
     for lateral in solid_at:
         c = lateral * per_m_across
         fill(texels, (c - 0.05 * per_m_across, 0, c + 0.05 * per_m_across, shape[0]), paint)
     manhole = (rng.uniform(0.3, 0.7) * shape[1], 6.0 * per_m_along)
     disc(texels, manhole, 0.32 * per_m_along, 70.0)
     disc(texels, manhole, 0.26 * per_m_along, 105.0)
-    return Texture(texels, (width_m, 8.0))
+    return Texture(texels, (width_m, length_m))
 
 
 def paving(rng: np.random.Generator) -> Texture:
@@ -465,6 +488,108 @@ def sign(rng: np.random.Generator) -> Texture:
         disc(texels, (64.0, 64.0), 30.0, 255.0 - field)
         disc(texels, (64.0, 64.0), 18.0, field)
     return Texture(texels + grain(rng, shape, 2.0), (0.6, 0.6))
+
+
+# --- the highway ----------------------------------------------------------------------------
+
+
+def grass(rng: np.random.Generator) -> Texture:
+    """Rough grass of the verges and the median, 16 m x 16 m per tile: grey 105 with dark
+    and light clumps of 5-30 cm (they stay visible at the grazing angles a verge is seen
+    at), patches of about 1 m and broad blotches."""
+    shape = (1024, 1024)
+    texels = 105.0 + periodic_noise(rng, shape, ((1.5, 10.0), (5.0, 22.0), (16.0, 14.0), (64.0, 8.0)))
+    return Texture(np.clip(texels, 0.0, 255.0), (16.0, 16.0))
+
+
+def guard_rail(rng: np.random.Generator) -> Texture:
+    """A W-beam guard rail 16 m x 0.35 m: four 4 m beams of galvanised steel, each of its
+    own shade and with its own dirt, a light ridge along the top, middle and bottom and
+    two dark grooves between, splice bolts at the start of each beam and post bolts 2 m
+    apart. The beams differ so that the rail does not repeat every 4 m like its posts."""
+    shape = (64, 2048)
+    per_m = shape[1] / 16.0
+    texels = rng.uniform(150, 175) * np.ones(shape, dtype=np.float32)
+    texels *= 0.85 + 0.3 * np.abs(np.cos(np.linspace(0.0, 2.0 * np.pi, shape[0], dtype=np.float32)))[:, None]
+    for beam in range(4):
+        shade(texels, (4.0 * beam * per_m, 0, 4.0 * (beam + 1) * per_m, shape[0]), rng.uniform(0.8, 1.1))
+    texels += periodic_noise(rng, shape, ((0.8, 2.0), (6.0, 12.0)))
+    for row in (0.3, 0.7):
+        fill(texels, (0, row * shape[0] - 2, shape[1], row * shape[0] + 2), 70.0)
+    for start in np.arange(0.0, 16.0, 4.0):
+        for col in (0.06, 0.14, 0.22, 0.30):
+            for row in (0.3, 0.7):
+                disc(texels, ((start + col) * per_m, row * shape[0]), 3.0, 45.0)
+        for bolt in (1.0, 3.0):
+            disc(texels, ((start + bolt) * per_m, 0.5 * shape[0]), 4.0, 45.0)
+    return Texture(texels, (16.0, 0.35))
+
+
+def noise_wall(rng: np.random.Generator) -> Texture:
+    """A noise barrier 16 m x 4 m: 2 m x 1 m panels of horizontal ribs (a shade per panel, a
+    dark groove every 25 cm) between steel posts about every 4 m (each placed on its own,
+    so the barrier does not repeat every 4 m), on a concrete plinth 0.5 m tall, weathered
+    in broad streaks."""
+    shape = (512, 2048)
+    per_m = shape[0] / 4.0
+    texels = slab_pattern(rng, shape, (8, 4), rng.uniform(120, 160), 70.0, 3.0, 0.15)
+    for row in np.arange(0.0, 3.5 * per_m, 0.25 * per_m):
+        fill(texels, (0, row, shape[1], row + 3), 80.0)
+    fill(texels, (0, 3.5 * per_m, shape[1], shape[0]), rng.uniform(165, 190))
+    for post in np.arange(0.0, 16.0, 4.0) + rng.uniform(-0.4, 0.4, size=4):
+        fill(texels, ((post - 0.1) * per_m, 0, (post + 0.1) * per_m, shape[0]), 60.0)
+    texels += periodic_noise(rng, shape, ((1.0, 3.0), (24.0, 10.0)))
+    return Texture(texels, (16.0, 4.0))
+
+
+def foliage(rng: np.random.Generator) -> Texture:
+    """A tree crown 4 m x 4 m: dark leaves with light clumps of 5-40 cm and shadows."""
+    shape = (256, 256)
+    texels = 85.0 + periodic_noise(rng, shape, ((1.2, 18.0), (4.0, 22.0), (12.0, 14.0)))
+    return Texture(np.clip(texels, 0.0, 255.0), (4.0, 4.0))
+
+
+def bark(rng: np.random.Generator) -> Texture:
+    """A tree trunk 0.5 m x 2 m: dark vertical streaks (a shade per 2 cm column) and grain."""
+    shape = (256, 64)
+    streaks = np.repeat(rng.normal(1.0, 0.15, size=(1, 16)), 4, axis=1).astype(np.float32)
+    return Texture(70.0 * streaks + grain(rng, shape, 4.0), (0.5, 2.0))
+
+
+def hillside(rng: np.random.Generator) -> Texture:
+    """A wooded hillside 64 m x 32 m: tree crowns of 0.5-2 m over lighter meadow and darker
+    forest patches of tens of metres."""
+    shape = (256, 512)
+    texels = 110.0 + periodic_noise(rng, shape, ((0.8, 10.0), (2.0, 14.0), (24.0, 18.0)))
+    return Texture(np.clip(texels, 0.0, 255.0), (64.0, 32.0))
+
+
+def direction_sign(rng: np.random.Generator, size_m: tuple[float, float]) -> Texture:
+    """A motorway direction sign ``size_m = (width, height)``: a dark field in a light border,
+    two or three lines of destination lettering, a route number box and an arrow."""
+    shape = (256, 512)
+    per_m_x, per_m_y = shape[1] / size_m[0], shape[0] / size_m[1]
+    field, ink = rng.uniform(50, 80), rng.uniform(215, 240)
+    texels = np.full(shape, field, dtype=np.float32)
+    outline(texels, (0, 0, shape[1], shape[0]), 0.08 * per_m_x, ink)
+    for line in range(int(rng.integers(2, 4))):
+        row = (0.3 + 0.5 * line) * per_m_y
+        col = 0.35 * per_m_x
+        for _ in range(int(rng.integers(5, 11))):
+            width = rng.uniform(0.12, 0.22) * per_m_x
+            fill(texels, (col, row, col + width, row + 0.3 * per_m_y), ink)
+            col += width + 0.06 * per_m_x
+    box = (shape[1] - 1.0 * per_m_x, 0.25 * per_m_y, shape[1] - 0.3 * per_m_x, 0.75 * per_m_y)
+    fill(texels, box, ink)
+    fill(texels, (box[0] + 0.15 * per_m_x, box[1] + 0.1 * per_m_y, box[2] - 0.15 * per_m_x, box[3] - 0.1 * per_m_y),
+         field)
+    shaft = shape[1] - 0.65 * per_m_x
+    fill(texels, (shaft - 0.06 * per_m_x, 1.2 * per_m_y, shaft + 0.06 * per_m_x, 2.1 * per_m_y), ink)
+    for step in range(6):
+        half = (0.05 + 0.04 * step) * per_m_x
+        row = (1.0 + 0.04 * step) * per_m_y
+        fill(texels, (shaft - half, row, shaft + half, row + 0.04 * per_m_y), ink)
+    return Texture(texels + grain(rng, shape, 2.0), size_m)
 
 
 def flat() -> Texture:

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from pld_slam.errors import OutputError, PldSlamError
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.synth.scenarios import FRAME_RATE, Scenario, build_scenario
+from pld_slam.synth.scenarios import FRAME_RATE, Scenario, build_scenario, make_camera
 
 METADATA = "synth.json"
 OUTPUTS = ("image_0", "image_1", "dynamic_masks", "calib.txt", "times.txt", "poses.txt", METADATA)
@@ -92,19 +92,26 @@ def write_text_files(out_dir: Path, scenario: Scenario) -> None:
     # Adding 0.0 turns any -0.0 into 0.0, so the identity prints as plain zeros and ones.
     rows = scenario.poses[:, :3, :].reshape(len(scenario.poses), 12) + 0.0
     (out_dir / "poses.txt").write_text("".join(format_row(row) + "\n" for row in rows))
-    camera = scenario.camera
     metadata = {
         "generator": "pld_slam.synth",
         "scenario": scenario.name,
         "seed": scenario.seed,
-        "width": camera.width,
-        "height": camera.height,
         "n_frames": scenario.n_frames,
         "frame_rate": FRAME_RATE,
+        **camera_metadata(scenario.camera),
+    }
+    (out_dir / METADATA).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+
+
+def camera_metadata(camera: StereoCamera) -> dict:
+    """What ``synth.json`` records of the camera: ``width``, ``height`` [px] and ``camera``
+    (fx, fy, cx, cy [px], baseline [m])."""
+    return {
+        "width": camera.width,
+        "height": camera.height,
         "camera": {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
                    "baseline": camera.baseline},
     }
-    (out_dir / METADATA).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
@@ -114,7 +121,7 @@ def write_png(path: Path, image: np.ndarray) -> None:
 
 
 def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
-                   size: tuple[int, int] = (640, 480), seed: int = 0,
+                   size: tuple[int, int] | None = None, seed: int = 0, camera: str = "default",
                    progress: bool = False) -> SynthSummary:
     """Render scenario ``scenario`` and write it to ``out_dir`` in the KITTI layout.
 
@@ -126,10 +133,14 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
         One of `pld_slam.synth.SCENARIOS`.
     n_frames : int or None
         Frames to render; None for the scenario's default.
-    size : tuple of int
-        ``(width, height)`` [px].
+    size : tuple of int or None
+        ``(width, height)`` [px] of the ``default`` camera; None for
+        `pld_slam.synth.scenarios.DEFAULT_SIZE` (the ``kitti`` camera's size is fixed).
     seed : int
         Fixes the scene, motion and noise: the same arguments write the same bytes.
+    camera : str
+        One of `pld_slam.synth.scenarios.CAMERAS`: ``default`` (fx = 0.6 width, baseline
+        0.5 m) or ``kitti`` (KITTI odometry 00-02's 1241 x 376 rectified grey pair).
     progress : bool
         Show a progress bar when stderr is a terminal (tqdm's ``disable=None``), as
         ``pld-slam run`` does: redrawn bars in a log file are noise.
@@ -137,12 +148,13 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
     Raises
     ------
     PldSlamError
-        For a bad scenario name, size or frame count, or an unrelated non-empty folder;
+        For a bad scenario name, camera, size or frame count, a size given with the
+        ``kitti`` camera, or an unrelated non-empty folder;
         `OutputError` for a folder that cannot be created or written.
     """
     out_dir = Path(out_dir)
     start = time.perf_counter()
-    world = build_scenario(scenario, n_frames, size, seed)
+    world = build_scenario(scenario, n_frames, size, seed, camera)
     try:
         prepare_folder(out_dir)
         write_text_files(out_dir, world)
@@ -179,9 +191,10 @@ def write_sequence(out_dir: Path, scenario: str, n_frames: int | None = None,
     )
 
 
-def ensure_sequence(out_dir: Path, scenario: str, n_frames: int, seed: int = 0) -> Path:
-    """``out_dir``, holding scenario ``scenario`` of ``n_frames`` frames and ``seed`` at the
-    default size: written by `write_sequence` unless its ``synth.json`` says it already is.
+def ensure_sequence(out_dir: Path, scenario: str, n_frames: int, seed: int = 0, camera: str = "default") -> Path:
+    """``out_dir``, holding scenario ``scenario`` of ``n_frames`` frames and ``seed`` seen by
+    ``camera`` (at the default size): written by `write_sequence` unless its ``synth.json``
+    says it already is (the camera by its size and intrinsics).
 
     For callers that keep generated sequences between runs (regression cells, benchmarks):
     rendering a few hundred frames takes tens of seconds.
@@ -190,8 +203,10 @@ def ensure_sequence(out_dir: Path, scenario: str, n_frames: int, seed: int = 0) 
     metadata = out_dir / METADATA
     if metadata.is_file():
         written = json.loads(metadata.read_text())
-        if (written.get("scenario"), written.get("n_frames"), written.get("seed")) == (scenario, n_frames, seed):
+        wanted = {"scenario": scenario, "n_frames": n_frames, "seed": seed,
+                  **camera_metadata(make_camera(camera, None))}
+        if all(written.get(key) == value for key, value in wanted.items()):
             return out_dir
-    write_sequence(out_dir, scenario, n_frames, seed=seed)
+    write_sequence(out_dir, scenario, n_frames, seed=seed, camera=camera)
     return out_dir
 
