@@ -69,6 +69,9 @@ class CalibrationConfig:
     pair_motion_baselines: float = _param(
         5.0, "an anchor's frames are this far apart [stereo baselines of camera motion]: sets the frame gap", 0.0
     )
+    min_frame_gap: int = _param(
+        2, "smallest frame gap between an anchor's frames (consecutive frames share their points' sub-pixel errors)", 1
+    )
     max_frame_gap: int = _param(5, "largest frame gap between an anchor's frames (pairs must still match)", 1)
     max_offset_px: float = _param(1.0, "the offset is searched in [-this, +this] [px]", 0.1)
     max_sigma_px: float = _param(

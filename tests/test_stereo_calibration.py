@@ -126,9 +126,19 @@ def test_the_frame_gap_follows_the_camera_motion_in_baselines(street):
     # The street's camera drives 0.8 m per frame with a 0.5 m baseline: 1.6 baselines.
     config = load_config(overrides=["calibration.min_anchors=3"])
     assert frame_gap(street, {}, config) == 3  # 5 baselines
-    near = load_config(overrides=["calibration.min_anchors=3", "calibration.pair_motion_baselines=2.0"])
-    assert frame_gap(street, {}, near) == 1
+    near = ["calibration.min_anchors=3", "calibration.pair_motion_baselines=2.0"]
+    assert frame_gap(street, {}, load_config(overrides=[*near, "calibration.min_frame_gap=1"])) == 1
+    assert frame_gap(street, {}, load_config(overrides=near)) == 2  # never consecutive frames by default
     assert frame_gap(street, {}, load_config()) == 2  # 6 anchors of 5 frames fill 30 of the 40 frames
+
+
+def test_a_sequence_too_short_for_the_smallest_gap_gets_no_estimate(street):
+    short = dataclasses.replace(street, frames=street.frames.select(np.arange(20)),
+                                timestamps=street.timestamps[:20])
+    assert frame_gap(short, {}, load_config()) == 2
+    camera, estimate = calibrated_camera(short, load_config())
+    assert not estimate.used and "fewer than 6" in estimate.reason
+    assert camera == street.camera
 
 
 def test_a_camera_that_never_moves_gets_the_widest_gap(street):
