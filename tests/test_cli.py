@@ -184,8 +184,9 @@ def test_run_writes_trajectories_summary_and_plot(synthetic_sequence, tmp_path):
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 4)
     assert result.exit_code == 0, result.output
     assert "ATE RMSE" in result.output and "total ms/frame" in result.output
-    assert re.search(r"^scale \(sim3\) / path +\d\.\d{4} / \d\.\d{4} \(\d+\.\d\d % (long|short)\)$",
-                     result.output, re.M)
+    # 3 of these 4 tiny frames fail to track: their poses are the motion model's, the truth
+    # spreads over less than ten times their error, and no scale is read off them
+    assert re.search(r"^scale \(sim3\) / path +n/a$", result.output, re.M)
     assert "loop ms/keyframe" in result.output and re.search(r"loops closed \(candidates\) +0 \(0\)", result.output)
     kitti = read_kitti(out / "trajectory.kitti.txt")
     assert len(kitti) == 4 and np.allclose(kitti.poses[0], np.eye(4))

@@ -108,6 +108,18 @@ def test_the_path_ratio_is_over_the_matched_poses_only_and_no_scale_is_read_off_
     assert result.path_ratio is None and result.sim3_scale is None
 
 
+def test_no_scale_is_read_off_a_ground_truth_that_moves_less_than_ten_times_the_error():
+    groundtruth = drive()
+    noise = np.random.default_rng(1).normal(0.0, 1.0, (len(groundtruth), 3))
+    lever = np.sqrt(np.mean(np.sum((groundtruth.positions - groundtruth.positions.mean(axis=0)) ** 2, axis=1)))
+    for error_m, measurable in ((lever / 30.0, True), (lever / 5.0, False)):
+        noisy = groundtruth.poses.copy()
+        noisy[:, :3, 3] += noise * error_m / np.sqrt(3.0)
+        result = evaluate(groundtruth, with_poses(groundtruth, noisy))
+        assert (result.sim3_scale is not None) == measurable
+        assert (result.path_ratio is not None) == measurable
+
+
 def test_a_constant_per_frame_motion_error_is_the_per_frame_rpe():
     groundtruth = drive()
     error = make_pose(Rotation.from_rotvec([0.0, 0.002, 0.0]).as_matrix(), [0.03, 0.0, 0.04])
