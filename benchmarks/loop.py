@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from extracts import data_dir, existing_extracts, real_sequences
-from mapping import scale_and_sim3
+from mapping import sim3_figures
 
 from pld_slam.config import Config, LoopConfig
 from pld_slam.datasets import StereoSequence, open_sequence
@@ -110,7 +110,7 @@ def end_error(sequence: StereoSequence, result: RunResult) -> float:
 def loop_row(sequence: StereoSequence, detector: str, vocabulary: Path) -> dict:
     """One run's loop-closing figures."""
     result, summary = run(sequence, detector, vocabulary)
-    scale = scale_and_sim3(sequence, result)
+    scale = sim3_figures(summary)
     loop = summary["loop"] or {}
     truth = loop.get("ground_truth") or {}
     loops = loop.get("loops", [])

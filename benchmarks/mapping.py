@@ -47,7 +47,6 @@ import pandas as pd
 from extracts import real_sequences
 
 from pld_slam.datasets import StereoSequence, open_sequence
-from pld_slam.eval.metrics import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.trajectory import write_kitti
 from pld_slam.run_config import load_run_config
@@ -71,14 +70,10 @@ def mean_stage_ms(result: RunResult, stages: tuple[str, ...]) -> float:
     return float(np.mean([sum(r.stage_ms.get(stage, 0.0) for stage in stages) for r in result.records]))
 
 
-def scale_and_sim3(sequence: StereoSequence, result: RunResult) -> dict:
-    """ATE after Sim(3) alignment and the estimate's path length over the ground truth's (None without one)."""
-    if sequence.groundtruth is None:
-        return {"ATE sim3 [m]": None, "path ratio": None}
-    estimate = result.trajectory()
-    truth = sequence.groundtruth
-    ratio = estimate.path_length() / max(truth.path_length(), 1e-12)
-    return {"ATE sim3 [m]": evaluate(truth, estimate, align="sim3").ate_rmse_m, "path ratio": ratio}
+def sim3_figures(summary: dict) -> dict:
+    """The run summary's ATE after Sim(3) alignment and path ratio (None without ground truth, or
+    where the truth hardly moves: `pld_slam.eval.metrics.scale_is_measurable`)."""
+    return {"ATE sim3 [m]": summary["ate_sim3_rmse_m"], "path ratio": summary["path_ratio"]}
 
 
 def accuracy_row(sequence: StereoSequence, variant: str, overrides: tuple[str, ...]) -> dict:
@@ -98,7 +93,7 @@ def accuracy_row(sequence: StereoSequence, variant: str, overrides: tuple[str, .
         "points": landmarks.get("points"),
         "lines": landmarks.get("lines"),
         "ATE [m]": summary["ate_rmse_m"],
-        **scale_and_sim3(sequence, result),
+        **sim3_figures(summary),
         "RPE t [m]": summary["rpe_trans_rmse_m"],
         "RPE R [deg]": summary["rpe_rot_rmse_deg"],
         "pt inl": features["map_point_inliers"] if with_map else features["point_inliers"],

@@ -24,7 +24,6 @@ pixel locking).
 """
 
 import argparse
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -59,23 +58,6 @@ MAX_MATCH_DISTANCE = 40
 """Largest ORB Hamming distance of such a match [bits]."""
 
 
-@dataclass
-class PointErrors:
-    """Stereo points of the scanned frames with a LiDAR disparity (columns of one table)."""
-
-    frame: list
-    u: list
-    octave: list
-    measured: list
-    true: list
-    level_fraction: list
-
-    def frame_table(self) -> pd.DataFrame:
-        table = pd.DataFrame(self.__dict__)
-        table["error"] = table.measured - table.true
-        return table
-
-
 def robust_sigma(values: np.ndarray) -> float:
     """1.4826 times the median absolute deviation."""
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
@@ -98,39 +80,36 @@ def features_of(sequence: StereoSequence, index: int, config: Config, camera) ->
     return extract_stereo_features(left, right, camera, config.points, config.lines)
 
 
-def lidar_errors(sequence: StereoSequence, config: Config) -> tuple[pd.DataFrame, pd.DataFrame, list]:
-    """Points' and line endpoints' disparity errors against the scans, and SGBM's samples."""
+def lidar_errors(sequence: StereoSequence, config: Config) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """Points' and line endpoints' disparity errors against the scans, and SGBM's disparities at the scans."""
     camera = sequence.camera
     T_c_l = lidar_to_camera(sequence.root)
-    points = PointErrors([], [], [], [], [], [])
-    endpoints = []
-    sgbm_samples = []
+    points, endpoints, sgbm_samples = [], [], []
     matcher = sgbm()
     for index in scanned_frames(sequence.root):
         if index >= len(sequence):
             continue
         scan = project_scan(read_scan(scan_path(sequence.root, index)), T_c_l, camera)
-        features = features_of(sequence, index, config, camera)
+        left, right = sequence.frames.read(index)
+        features = extract_stereo_features(left, right, camera, config.points, config.lines)
         stereo = features.points
         true = camera.bf * inverse_depth_at(scan, stereo.uv)
         known = np.isfinite(true)
         scale = level_scales(config.points)[stereo.octave]
-        points.frame += [index] * int(known.sum())
-        points.u += list(stereo.uv[known, 0])
-        points.octave += list(stereo.octave[known])
-        points.measured += list(stereo.disparity[known])
-        points.true += list(true[known])
-        points.level_fraction += list(((stereo.disparity / scale) % 1.0)[known])
-        ends = features.lines.endpoints.reshape(-1, 2)
-        line_true = camera.bf * inverse_depth_at(scan, ends)
+        points.append(pd.DataFrame({
+            "frame": index, "u": stereo.uv[known, 0], "octave": stereo.octave[known],
+            "measured": stereo.disparity[known], "true": true[known],
+            "level_fraction": ((stereo.disparity / scale) % 1.0)[known],
+        }))
+        line_true = camera.bf * inverse_depth_at(scan, features.lines.endpoints.reshape(-1, 2))
         line_known = np.isfinite(line_true)
         endpoints.append(pd.DataFrame({"true": line_true[line_known],
                                        "measured": features.lines.disparity.reshape(-1)[line_known]}))
-        left, right = sequence.frames.read(index)
         sgbm_samples.append(sgbm_at(matcher, left, right, scan, camera))
-    line_table = pd.concat(endpoints, ignore_index=True) if endpoints else pd.DataFrame({"true": [], "measured": []})
-    line_table["error"] = line_table.measured - line_table.true
-    return points.frame_table(), line_table, sgbm_samples
+    tables = [pd.concat(found, ignore_index=True) for found in (points, endpoints, sgbm_samples)]
+    for table, measured in zip(tables, ("measured", "measured", "sgbm")):
+        table["error"] = table[measured] - table.true
+    return tuple(tables)
 
 
 def sgbm() -> cv2.StereoSGBM:
@@ -162,11 +141,6 @@ def offset_and_lidar_shift(samples: pd.DataFrame, bf: float) -> tuple[float, flo
     return tuple(least_squares(residuals, [0.0, 0.0], loss="soft_l1", f_scale=0.3).x)
 
 
-def ray(camera, uv: np.ndarray) -> np.ndarray:
-    """Unit-depth rays (N, 3) of left pixels (N, 2)."""
-    return np.column_stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy, np.ones(len(uv))])
-
-
 def motion_pairs(sequence: StereoSequence, config: Config) -> pd.DataFrame:
     """Stereo points matched between frames ``MOTION_GAPS`` apart, found where the ground truth moves them."""
     camera = sequence.camera
@@ -185,7 +159,7 @@ def motion_pairs(sequence: StereoSequence, config: Config) -> pd.DataFrame:
             if len(a) == 0 or len(b) == 0:
                 continue
             T_b_a = np.linalg.inv(poses[first + gap]) @ poses[first]
-            moved = (ray(camera, a.uv) * (camera.bf / a.disparity)[:, None]) @ T_b_a[:3, :3].T + T_b_a[:3, 3]
+            moved = camera.triangulate(a.uv, a.disparity) @ T_b_a[:3, :3].T + T_b_a[:3, 3]
             ahead = moved[:, 2] > 0.5
             predicted = camera.project(moved[ahead])
             tree = cKDTree(b.uv)
@@ -205,7 +179,7 @@ def motion_pairs(sequence: StereoSequence, config: Config) -> pd.DataFrame:
 def motion_residuals(pairs: pd.DataFrame, camera, offset: float) -> np.ndarray:
     """Disparity residuals (P,) [px] of the later frames when every measured disparity is less ``offset``."""
     d0 = pairs.d0.to_numpy() - offset
-    points = ray(camera, pairs[["u0", "v0"]].to_numpy()) * (camera.bf / d0)[:, None]
+    points = camera.triangulate(pairs[["u0", "v0"]].to_numpy(), d0)
     rotations = pairs[[f"r{i}" for i in range(9)]].to_numpy().reshape(-1, 3, 3)
     moved = np.einsum("nij,nj->ni", rotations, points) + pairs[["tx", "ty", "tz"]].to_numpy()
     return pairs.d1.to_numpy() - offset - camera.bf / moved[:, 2]
@@ -234,7 +208,7 @@ def print_table(title: str, table: pd.DataFrame) -> None:
 
 def report_lidar(sequence: StereoSequence, config: Config) -> None:
     camera = sequence.camera
-    points, lines, sgbm_samples = lidar_errors(sequence, config)
+    points, lines, samples = lidar_errors(sequence, config)
     wrong = points.error.abs() > MAX_ERROR_PX
     kept = points[~wrong]
     print(f"\n## {sequence.name}: LiDAR (frames {', '.join(map(str, sorted(set(points.frame))))})")
@@ -248,9 +222,7 @@ def report_lidar(sequence: StereoSequence, config: Config) -> None:
                 summary_by(kept, pd.cut(kept.u, np.linspace(0, camera.width, 7).round())))
     lines = lines[lines.error.abs() <= MAX_ERROR_PX]
     print_table("line endpoints by true disparity [px]", summary_by(lines, pd.cut(lines.true, DISPARITY_BINS)))
-    samples = pd.concat(sgbm_samples, ignore_index=True)
-    samples = samples[(samples.sgbm - samples.true).abs() <= MAX_ERROR_PX]
-    samples["error"] = samples.sgbm - samples.true
+    samples = samples[samples.error.abs() <= MAX_ERROR_PX]
     print_table("SGBM against LiDAR at every scan point, by true disparity [px]",
                 summary_by(samples, pd.cut(samples.true, DISPARITY_BINS)))
     road = samples[(samples.v > camera.cy + 45) & ((samples.u - camera.cx).abs() < 250)]
