@@ -24,6 +24,10 @@ from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam_cli.config import config_files_option, set_option
 from pld_slam_cli.evaluate import SCALE_LABEL, coverage_note, scale_text
 
+KERNELS_FROM_CACHE_SECONDS = 1.0
+"""Loading the numba kernels from the disk cache takes well under this [s]; longer, they were compiled."""
+LABEL_WIDTH = 31
+"""Characters of the run table's label column: the longest label, ``see_through ms/frame (median)``, and two."""
 SKIPPED_FRAMES_SHOWN = 3
 """How many skipped frames the run table names; summary.json lists them all."""
 
@@ -78,6 +82,7 @@ def format_run_table(summary: dict) -> str:
         ("real-time factor", number(summary["real_time_factor"], "{:.2f}", "")
          + f" (sequence time at {frame_rate_text(summary['frame_rate'])} / wall time;"
          " above 1 is faster than real time)"),
+        *kernel_compile_rows(summary.get("kernels_seconds", 0.0)),
         ("marked dynamic", number(100.0 * (summary["dynamic"]["marked_fraction"] or 0.0), "{:.1f}", "%")),
         *disparity_offset_rows(summary["disparity_offset"]),
     ]
@@ -105,7 +110,16 @@ def format_run_table(summary: dict) -> str:
         if timing:
             per = "keyframe" if stage in ("mapping", "loop") else "frame"
             rows.append((f"{stage} ms/{per} (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
-    return "\n".join(f"{label:<28}{value}" for label, value in rows)
+    return "\n".join(f"{label:<{LABEL_WIDTH}}{value}" for label, value in rows)
+
+
+def kernel_compile_rows(seconds: float) -> list[tuple[str, str]]:
+    """The report row of a first run on a machine, whose numba kernels were compiled before it (`pld_slam.kernels`);
+    none when they came from the cache (a second at most)."""
+    if seconds <= KERNELS_FROM_CACHE_SECONDS:
+        return []
+    return [("numba kernels", f"compiled in {seconds:.1f} s before the first frame "
+                              "(once per machine, cached; not in the times above or below)")]
 
 
 def disparity_offset_rows(estimate: dict | None) -> list[tuple[str, str]]:
@@ -188,7 +202,7 @@ def run_and_write(
         partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
         written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name, formats=formats)
+                                    title=sequence.name, formats=formats, records=system.result.records)
         partial.discard()
     if interrupted is not None:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
@@ -234,7 +248,8 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     Writes trajectory.kitti.txt and trajectory.tum.txt (T_w_c of every frame, world =
     first camera; --formats adds trajectory.euroc.csv or leaves one out), summary.json
     (frames, failures, timing, real-time factor, ATE/RPE when the sequence has ground
-    truth, the config and its sources), loops.csv and trajectory.png.
+    truth, the config and its sources), frames.csv (a row per frame: counts, each
+    stage's ms, the map's size, memory), loops.csv and trajectory.png.
     Ctrl-C, SIGTERM or an error mid-run still writes the trajectory so far; while the run
     goes, trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run
     is killed, deleted once the final files are written). The files of an earlier run in

@@ -14,12 +14,23 @@ else ``~/.cache/pld-slam/numba``) when the user has not set it, before numba is 
 Where numba was imported earlier without it (a user's own program), there is no cache
 folder to use and kernels are compiled per process, never cached next to the source.
 Numba keys a cache entry by the source file's path and modification time, so an edited
-or reinstalled package never loads a stale kernel.
+or reinstalled package never loads a stale kernel. `pld_slam.kernels` compiles them all
+before a run's first frame.
 """
 
 import numba
 
+_KERNELS: dict[str, numba.core.registry.CPUDispatcher] = {}
+"""Every kernel declared so far, by qualified name (module and function)."""
+
 
 def kernel(function):
     """``function`` compiled by ``numba.njit(nogil=True)``, cached on disk when a cache folder is set."""
-    return numba.njit(nogil=True, cache=bool(numba.config.CACHE_DIR))(function)
+    dispatcher = numba.njit(nogil=True, cache=bool(numba.config.CACHE_DIR))(function)
+    _KERNELS[f"{function.__module__}.{function.__qualname__}"] = dispatcher
+    return dispatcher
+
+
+def compiled_kernels() -> dict[str, numba.core.registry.CPUDispatcher]:
+    """The kernels of every module imported so far, by qualified name (`pld_slam.kernels` imports them all)."""
+    return dict(_KERNELS)

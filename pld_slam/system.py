@@ -13,7 +13,8 @@ tracked and mapped (`pld_slam.frame_extraction`); the output is the same. BLAS r
 thread during the calibration and `run` (`pld_slam.blas.one_blas_thread`; a caller
 stepping `process_frame` itself can wrap its loop in it).
 
-Before the first frame, the stereo rig's disparity offset is estimated from frame pairs
+Before the first frame, every numba kernel is compiled (`pld_slam.kernels`; seconds on a
+machine's first run, outside the run's wall time), then the stereo rig's disparity offset is estimated from frame pairs
 spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
 every stage then uses `System.camera`, the sequence's camera with that offset, and the
 estimate's time counts in the run's wall time.
@@ -39,7 +40,7 @@ that rows stay aligned with frames.
 
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -51,6 +52,7 @@ from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.se3 import inverse
+from pld_slam.kernels import compile_kernels
 from pld_slam.keyframes import KeyframeReason
 from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.mapping.global_ba import global_bundle_adjustment
@@ -59,7 +61,7 @@ from pld_slam.mapping.local_mapping import KeyframeInsertion, LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
-from pld_slam.timing import ms_since
+from pld_slam.timing import ms_since, resident_mb
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
@@ -94,6 +96,9 @@ class FrameRecord:
     skipped_reason : why the frame's images could not be used, or None.
     dynamic_points, dynamic_lines : label counts of the matched points and lines against
         the sequence's moving-object masks (synthetic sequences), or None without masks.
+    map_size : keyframes, point landmarks and line landmarks alive once the frame was
+        mapped ((0, 0, 0) without a map).
+    rss_mb : the main process's resident memory then [MiB] (`pld_slam.timing.resident_mb`).
     """
 
     index: int
@@ -110,6 +115,8 @@ class FrameRecord:
     reference_keyframe: int | None = None
     T_c_r: np.ndarray | None = None
     keyframe: KeyframeReason | None = None
+    map_size: tuple[int, int, int] = (0, 0, 0)
+    rss_mb: float = 0.0
 
 
 @dataclass
@@ -122,7 +129,9 @@ class RunResult:
     ``disparity_offset`` the self-calibration before the run (None when switched off);
     ``frontend_worker`` where the next frames were extracted ahead: ``"process"``,
     ``"thread"`` (`pld_slam.frame_extraction.background_worker`; a thread from the start or
-    after the forked child died), or None without prefetching.
+    after the forked child died), or None without prefetching; ``kernels_seconds`` the
+    time taken to compile the numba kernels before the run (`pld_slam.kernels`; not in
+    ``wall_seconds``: seconds once per machine, about 0.01 s from the cache).
     """
 
     records: list[FrameRecord] = field(default_factory=list)
@@ -134,6 +143,7 @@ class RunResult:
     global_ba: BaReport | None = None
     disparity_offset: DisparityOffsetEstimate | None = None
     frontend_worker: str | None = None
+    kernels_seconds: float = 0.0
 
     def trajectory(self) -> Trajectory:
         """``T_w_c`` of every processed frame, through its reference keyframe's current pose where it has one."""
@@ -178,6 +188,7 @@ class System:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"
             )
+        kernels_seconds = compile_kernels()
         with one_blas_thread():
             self.camera, disparity_offset = calibrated_camera(sequence, config)
         world_map = Map(config.mapping.covisibility_min_shared) if config.mapping.enabled else None
@@ -192,7 +203,7 @@ class System:
                                        worker)
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
                                 wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3,
-                                frontend_worker=self._frames.worker)
+                                frontend_worker=self._frames.worker, kernels_seconds=kernels_seconds)
         self._observer = observer
         self._record_observer = record_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
@@ -220,8 +231,7 @@ class System:
             record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts,
                                  {"total": ms_since(start)}, skipped_reason=str(error), reference_keyframe=reference,
                                  T_c_r=self._pose_to_reference(tracked.T_w_c, reference))
-            self._add(record, start)
-            return record
+            return self._add(record, start)
         frame, features = extracted.frame, extracted.features
         if not self._started:
             if not self.tracker.can_be_reference(features):
@@ -244,7 +254,7 @@ class System:
                              dynamic_points=point_counts, dynamic_lines=line_counts,
                              reference_keyframe=reference, T_c_r=T_c_r,
                              keyframe=tracked.keyframe if self.local_mapping is not None else None)
-        self._add(record, start)
+        record = self._add(record, start)
         if self._observer is not None:
             self._observer(frame, tracked)
         return record
@@ -257,8 +267,7 @@ class System:
         """
         record = FrameRecord(index, timestamp, np.eye(4), TrackingStatus.LOST, TrackingCounts(),
                              {"total": ms_since(start)}, skipped_reason=reason)
-        self._add(record, start)
-        return record
+        return self._add(record, start)
 
     def _map_frame(
         self, index: int, timestamp: float, features: StereoFeatures, tracked: TrackedFrame,
@@ -341,11 +350,18 @@ class System:
             self.result.global_ba = global_bundle_adjustment(self.result.map, self.camera, self.config)
             self.result.wall_seconds += time.perf_counter() - start
 
-    def _add(self, record: FrameRecord, start: float) -> None:
+    def _add(self, record: FrameRecord, start: float) -> FrameRecord:
+        """Keep ``record`` with the map's size and the memory now; return what was kept."""
+        world_map = self.result.map
+        if world_map is not None:
+            record = replace(record, map_size=(len(world_map.keyframes), world_map.points.n_alive,
+                                               world_map.lines.n_alive))
+        record = replace(record, rss_mb=resident_mb())
         self.result.records.append(record)
         self.result.wall_seconds += time.perf_counter() - start
         if self._record_observer is not None:
             self._record_observer(record)
+        return record
 
 
 def _new_keyframe(

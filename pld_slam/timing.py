@@ -1,5 +1,9 @@
-"""Wall-clock helpers: `ms_since`, and `StageClock`, the wall time of named stages lap by lap."""
+"""Wall-clock and memory readings: `ms_since`, `StageClock` (the wall time of named stages lap
+by lap) and `resident_mb`."""
 
+import os
+import resource
+import sys
 import time
 
 
@@ -20,3 +24,13 @@ class StageClock:
         now = time.perf_counter()
         self.laps[stage] = 1e3 * (now - self._last)
         self._last = now
+
+
+def resident_mb() -> float:
+    """This process's resident memory now [MiB]; where ``/proc`` is missing (macOS), its peak so far."""
+    try:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return peak / 2**20 if sys.platform == "darwin" else peak / 2**10

@@ -26,7 +26,7 @@ from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import skipped_frame_rows
+from pld_slam_cli.run import LABEL_WIDTH, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -335,7 +335,7 @@ def test_sigterm_mid_run_writes_the_trajectory_so_far_as_ctrl_c_does(tmp_path):
     assert child.returncode == EXIT_TERMINATED, stderr
     summary = json.loads((out / "summary.json").read_text())
     assert stderr == (f"terminated after {summary['frames']} of 30 frames; wrote trajectory.kitti.txt, "
-                      f"trajectory.tum.txt, summary.json, loops.csv, trajectory.png in {out}/\n")
+                      f"trajectory.tum.txt, summary.json, frames.csv, loops.csv, trajectory.png in {out}/\n")
     assert 4 <= len(read_tum(out / "trajectory.tum.txt")) == summary["frames"] < 30
     assert summary["stop_reason"] == "terminated"
     assert not (out / "trajectory.partial.tum.txt").exists()
@@ -363,8 +363,8 @@ def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_
     assert child.returncode == 0, child.stderr
     assert child.stderr == ""  # no library noise (libpng, OpenCV WARN), no progress bar off a terminal
     table = child.stdout.splitlines()
-    blank = " " * 28
-    start = table.index(f"{'skipped frames':<28}2")
+    blank = " " * LABEL_WIDTH
+    start = table.index(f"{'skipped frames':<{LABEL_WIDTH}}2")
     assert table[start + 1] == f"{blank}frame 2: {truncated}: cannot read image (not an image, or corrupt)"
     assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
                                 "but the calibration is for 160x120")
@@ -427,7 +427,7 @@ def test_ctrl_c_mid_run_names_the_files_written_and_where(synthetic_sequence, tm
     result = run("run", synthetic_sequence, "--out", out)
     assert result.exit_code == EXIT_INTERRUPTED
     assert result.stderr == (f"interrupted after 3 of 6 frames; wrote trajectory.kitti.txt, trajectory.tum.txt, "
-                             f"summary.json, loops.csv, trajectory.png in {out}/\n")
+                             f"summary.json, frames.csv, loops.csv, trajectory.png in {out}/\n")
     assert len(read_kitti(out / "trajectory.kitti.txt")) == 3
 
 
@@ -500,7 +500,7 @@ def test_a_run_deletes_the_files_of_an_earlier_run_in_its_folder_but_no_other_fi
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 1)
     assert result.exit_code == 0, result.output
     assert sorted(path.name for path in out.iterdir()) == [
-        "loops.csv", "notes.txt", "summary.json", "trajectory.kitti.txt", "trajectory.tum.txt"]
+        "frames.csv", "loops.csv", "notes.txt", "summary.json", "trajectory.kitti.txt", "trajectory.tum.txt"]
 
 
 def test_demo_writes_under_runs_which_git_ignores_and_says_where(tmp_path, monkeypatch):

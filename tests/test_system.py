@@ -16,6 +16,7 @@ import threading
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
@@ -26,6 +27,7 @@ from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
 from pld_slam.io.run_output import (
+    FRAMES,
     LOOP_COLUMNS,
     LOOPS,
     PLOT,
@@ -354,6 +356,25 @@ def test_two_fresh_systems_give_bit_identical_trajectories_and_files(sequence, c
                           sequence.groundtruth, "same")
     for file in (TRAJECTORY_KITTI, TRAJECTORY_TUM):
         assert (tmp_path / "a" / file).read_bytes() == (tmp_path / "b" / file).read_bytes()
+
+
+def test_frames_csv_has_a_row_per_frame_with_its_stage_times_and_the_map_growing(sequence, config, full_run,
+                                                                                 tmp_path):
+    summary = summarise_run(sequence, full_run, config)
+    written = write_run_outputs(tmp_path, full_run.trajectory(), summary, sequence.groundtruth, "frames",
+                                records=full_run.records)
+    assert tmp_path / FRAMES in written
+    table = pd.read_csv(tmp_path / FRAMES, keep_default_na=False, na_values=[""])
+    assert list(table["index"]) == list(range(N_FRAMES))
+    assert [f"{stage}_ms" for stage in STAGES] == [c for c in table.columns if c.endswith("_ms")]
+    assert np.allclose(table["total_ms"], [r.stage_ms["total"] for r in full_run.records], atol=1e-3)
+    keyframes = table["keyframe"].fillna("") != ""
+    assert keyframes.sum() == summary["mapping"]["keyframes"]
+    assert table.loc[keyframes, "mapping_ms"].notna().all() and table.loc[~keyframes, "mapping_ms"].isna().all()
+    assert (table["keyframes"] <= keyframes.cumsum()).all()
+    assert table["keyframes"].iloc[-1] == summary["mapping"]["keyframes_alive"]
+    assert (table["point_landmarks"].iloc[1:] > 0).all() and (table["rss_mb"] > 50).all()
+    assert list(table["points"]) == [r.n_points for r in full_run.records]
 
 
 # --- summarise_run --------------------------------------------------------------------

@@ -246,6 +246,7 @@ def summarise_run(
         "skipped_frames": [{"index": r.index, "reason": r.skipped_reason} for r in records if r.skipped_reason],
         "timing_ms": stage_timing(result),
         "wall_seconds": result.wall_seconds,
+        "kernels_seconds": result.kernels_seconds,
         "frontend_worker": result.frontend_worker,
         "real_time_factor": real_time_factor(sequence, result),
         "frame_rate": {"hz": sequence.frame_rate.hz, "source": sequence.frame_rate.source},

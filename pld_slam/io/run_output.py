@@ -1,5 +1,5 @@
-"""The files of a run: trajectories (KITTI, TUM, EuRoC), summary.json, loops.csv and a trajectory
-plot, and the partial trajectory streamed while the run goes.
+"""The files of a run: trajectories (KITTI, TUM, EuRoC), summary.json, frames.csv (a row per
+frame), loops.csv and a trajectory plot, and the partial trajectory streamed while the run goes.
 
 An output folder holds one run's files only: `prepare_output_folder` deletes the files
 an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
@@ -13,6 +13,7 @@ an internal error.
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from pld_slam.errors import OutputError
 from pld_slam.eval.plots import plot_trajectory_top_view
 from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
+from pld_slam.system import STAGES, FrameRecord
 from pld_slam.trajectory import Trajectory
 
 TRAJECTORY_KITTI = "trajectory.kitti.txt"
@@ -35,7 +37,8 @@ TRAJECTORY_PARTIAL = "trajectory.partial.tum.txt"
 SUMMARY = "summary.json"
 PLOT = "trajectory.png"
 LOOPS = "loops.csv"
-RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, PLOT, LOOPS)
+FRAMES = "frames.csv"
+RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS)
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
 
 
@@ -120,11 +123,13 @@ def write_run_outputs(
     groundtruth: Trajectory | None,
     title: str,
     formats: tuple[str, ...] = DEFAULT_FORMATS,
+    records: Sequence[FrameRecord] = (),
 ) -> list[Path]:
     """Write the run's files into ``out_dir`` (created if needed); return their paths.
 
     The trajectory files, one per format of ``formats`` (named by `TRAJECTORY_FILES`),
-    hold one row per processed frame (``T_w_c``, world = first camera). ``loops.csv``
+    hold one row per processed frame (``T_w_c``, world = first camera). ``frames.csv``
+    has a row per frame of ``records`` (`frame_table`), written when there is one. ``loops.csv``
     lists the loop candidates of the summary's ``loop`` section, one row each (written
     when the run had a loop stage and a frame); the plot marks the closed loops and is
     skipped for fewer than 2 frames. A file that cannot be written raises `OutputError`
@@ -132,14 +137,14 @@ def write_run_outputs(
     """
     create_output_folder(out_dir)
     try:
-        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats)
+        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records)
     except OSError as error:
         raise OutputError.from_os_error(out_dir, error) from None
 
 
 def _write_run_files(
     out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
-    formats: tuple[str, ...],
+    formats: tuple[str, ...], records: Sequence[FrameRecord],
 ) -> list[Path]:
     """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
     written = []
@@ -149,6 +154,9 @@ def _write_run_files(
             written.append(out_dir / TRAJECTORY_FILES[fmt])
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     written.append(out_dir / SUMMARY)
+    if records:
+        frame_table(records).to_csv(out_dir / FRAMES, index=False, float_format="%.3f")
+        written.append(out_dir / FRAMES)
     loop = summary.get("loop")
     if loop is not None and len(estimate) > 0:
         pd.DataFrame(loop["candidates"], columns=LOOP_COLUMNS).to_csv(out_dir / LOOPS, index=False)
@@ -157,6 +165,40 @@ def _write_run_files(
         plot_trajectory_top_view(out_dir / PLOT, groundtruth, estimate, title=title, loop_edges=closed_loop_times(loop))
         written.append(out_dir / PLOT)
     return written
+
+
+def frame_table(records: Sequence[FrameRecord]) -> pd.DataFrame:
+    """One row per frame: what tracking made of it, each stage's wall time and the map's size then.
+
+    Columns: ``index``, ``time`` [s], ``status`` (`TrackingStatus` value), ``keyframe``
+    (why the frame became one, empty otherwise), ``skipped`` (why its images could not be
+    used, empty otherwise), the stereo ``points`` and ``lines`` of its pair, the inliers
+    against the reference frame and the local map, then ``<stage>_ms`` for every stage of
+    `pld_slam.system.STAGES` (empty where the stage did not run: ``mapping`` and
+    ``loop`` run at keyframes), then ``keyframes``, ``point_landmarks`` and
+    ``line_landmarks`` alive once the frame was mapped, and ``rss_mb``, the main
+    process's resident memory then [MiB].
+    """
+    return pd.DataFrame(
+        {
+            "index": [r.index for r in records],
+            "time": [r.timestamp for r in records],
+            "status": [r.status.value for r in records],
+            "keyframe": [r.keyframe.value if r.keyframe is not None else "" for r in records],
+            "skipped": [r.skipped_reason or "" for r in records],
+            "points": [r.n_points for r in records],
+            "lines": [r.n_lines for r in records],
+            "point_inliers": [r.counts.point_inliers for r in records],
+            "line_inliers": [r.counts.line_inliers for r in records],
+            "map_point_inliers": [r.counts.map_point_inliers for r in records],
+            "map_line_inliers": [r.counts.map_line_inliers for r in records],
+            **{f"{stage}_ms": [r.stage_ms.get(stage, np.nan) for r in records] for stage in STAGES},
+            "keyframes": [r.map_size[0] for r in records],
+            "point_landmarks": [r.map_size[1] for r in records],
+            "line_landmarks": [r.map_size[2] for r in records],
+            "rss_mb": [r.rss_mb for r in records],
+        }
+    )
 
 
 LOOP_COLUMNS = [field.name for field in dataclasses.fields(LoopCandidate)]

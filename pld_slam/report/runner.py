@@ -14,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 from pld_slam.errors import PldSlamError
+from pld_slam.kernels import compile_kernels
 from pld_slam.report.cells import CellOutcome, CellSpec, execute_cell
 from pld_slam.report.store import is_finished, record_cell
 
@@ -72,6 +73,7 @@ def _local_outcomes(
     """Each cell with its outcome, run by ``workers`` threads each waiting on a child process, as they finish."""
     if not cells:
         return
+    compile_kernels()  # once, into the disk cache every cell loads from, instead of in each child at once
     with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
         futures = {pool.submit(execute_cell, spec, timeout): spec for spec in cells}
         try:
