@@ -1,8 +1,8 @@
 """The synthetic stereo world: the project's own deterministic test data.
 
 A textured street scene made of quads (facades with windows, paving, road markings, parked
-cars, poles, crates), or a motorway (guard rails, gantries, noise barriers, trees, distant
-buildings and hills), rendered as rectified stereo pairs by a vectorised ray caster from
+cars, poles, crates), a city of such streets on a grid, or a motorway (guard rails,
+gantries, noise barriers, trees, distant buildings and hills), rendered as rectified stereo pairs by a vectorised ray caster from
 the default camera or KITTI's (`CAMERAS`), with exact ground-truth poses and per-frame
 masks of the pixels on moving objects.
 

@@ -1,6 +1,7 @@
 """A vectorised ray caster for quads: z-buffered visibility, then deferred texturing.
 
-For a camera at ``T_w_c`` each quad is moved into the camera frame. Along the ray
+For a camera at ``T_w_c`` each quad is moved into the camera frame (each the scene draws
+from there: all of them unless it has a view distance, `Scene.quads_near`). Along the ray
 ``d = (x, y, 1)`` of the normalised pixel ``(x, y)``, a quad's plane is hit at inverse depth
 ``w = 1/z = (d . n) / (o . n)`` and its in-quad coordinates times ``w`` are
 ``sigma = d . a_hat - w (o . a_hat)`` and ``tau = d . b_hat - w (o . b_hat)``: all three are
@@ -360,8 +361,9 @@ def right_camera_pose(T_w_c: np.ndarray, camera: StereoCamera) -> np.ndarray:
 
 def render_stereo_views(scene: Scene, camera: StereoCamera, T_w_c: np.ndarray,
                         frame: int) -> tuple[View, View]:
-    """Noise-free left and right views of ``frame`` for the left camera at ``T_w_c``."""
-    quads = scene.quads_at(frame)
+    """Noise-free left and right views of ``frame`` for the left camera at ``T_w_c``: both
+    draw the quads the scene keeps near the left camera (`Scene.quads_near`)."""
+    quads = scene.quads_near(frame, T_w_c[:3, 3])
     left = render_view(scene, quads, camera, T_w_c, frame)
     right = render_view(scene, quads, camera, right_camera_pose(T_w_c, camera), frame)
     return left, right

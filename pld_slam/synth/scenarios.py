@@ -1,4 +1,4 @@
-"""The ten synthetic scenarios: a camera path, the street built along it, and its movers.
+"""The eleven synthetic scenarios: a camera path, the street built along it, and its movers.
 
 - ``static``: a street with gentle curves: buildings on both sides, parked cars, poles,
   crates; the camera drives in the right lane at 8 m/s (0.8 m per frame at 10 Hz) with a
@@ -62,6 +62,17 @@
   640 x 480 there are about a quarter fewer stereo points and the dynamic detectors
   flag static ones (seed 0: one tracking failure, scale 0.967; with the true masks
   0.998).
+- ``city`` (issue 40, `pld_slam.synth.city`): a drive like KITTI 00's, on which loop
+  closing is judged: as long (default 4,541 frames; 4.0 km at 10 m/s, slowing in the
+  turns) through a grid of streets of 70 m blocks that passes earlier places both the
+  same way and the other way. Unlike the others the world is not built along the path:
+  each street of the grid is built once (by this module's builders, on a straight path of
+  its own) and the camera drives the streets several times, turning inside the crossings;
+  first round a block and past the start, then along a street the other way (so the
+  fewest frames, 600, hold one revisit of each kind), then a walk over the grid. Oncoming
+  cars and cars going our way drive the streets around the camera's route; only quads
+  within 200 m of the camera are drawn (`pld_slam.synth.scene.QuadGrid`), so a frame
+  costs the same early and late in the drive.
 
 Conventions (see `pld_slam.synth.scene`): the world is the first left camera (x right,
 y down, z forward), the ground is the plane ``y = CAMERA_HEIGHT``. Positions along a path
@@ -113,16 +124,18 @@ from pld_slam.synth.scene import (
 )
 
 SCENARIOS = ("static", "dynamic", "loop", "lowtexture", "loop2", "nearmiss", "convoy", "crossing",
-             "parked_then_moving", "highway")
+             "parked_then_moving", "highway", "city")
 """Names accepted by `build_scenario`."""
 DEFAULT_FRAMES = {"static": 100, "dynamic": 100, "loop": 360, "lowtexture": 100, "loop2": 720, "nearmiss": 300,
-                  "convoy": 150, "crossing": 180, "parked_then_moving": 150, "highway": 100}
+                  "convoy": 150, "crossing": 180, "parked_then_moving": 150, "highway": 100, "city": 4541}
 MIN_LOOP_FRAMES = 300
+MIN_CITY_FRAMES = 600
 MIN_FRAMES = {
     # name: (fewest frames, what they are needed for): about 1 m per frame at most.
     "loop": (MIN_LOOP_FRAMES, "to drive around the block"),
     "loop2": (2 * MIN_LOOP_FRAMES, "to drive around the block twice"),
     "nearmiss": (150, "to drive out, round the block and back"),
+    "city": (MIN_CITY_FRAMES, "to pass an earlier place the same way and one the other way"),
 }
 
 CAMERA_HEIGHT = 1.6
@@ -576,9 +589,9 @@ def street_ground(path: Path, s_start: float, s_end: float, palette: Palette) ->
     return parts
 
 
-def ground_plane(path: Path, palette: Palette) -> Quads:
-    """One large floor 2 cm under the road, 400 m beyond the path all round."""
-    low, high = path.position.min(axis=0), path.position.max(axis=0)
+def ground_plane(points: np.ndarray, palette: Palette) -> Quads:
+    """One large floor 2 cm under the road, 400 m beyond the ground ``points`` (n, 3) all round."""
+    low, high = points.min(axis=0), points.max(axis=0)
     centre = 0.5 * (low + high) + 0.02 * DOWN
     size = high - low + 800.0
     return floor(centre, np.array([0.0, 0.0, 1.0]), size[0], size[2], palette.ground,
@@ -692,7 +705,7 @@ def street(path: Path, s_start: float, s_end: float, seed: int, palette: Palette
     """All static quads of a street between two arc lengths, including the ground plane,
     without the parked cars if not ``parked``. Each row of objects draws from its own
     random stream."""
-    parts = [ground_plane(path, palette), *street_ground(path, s_start, s_end, palette)]
+    parts = [ground_plane(path.position, palette), *street_ground(path, s_start, s_end, palette)]
     for make_row in STREET_ROWS:
         if make_row is parked_row and not parked:
             continue
@@ -1237,7 +1250,7 @@ def highway(path: Path, s_start: float, s_end: float, seed: int, palette: Palett
     scenery, each from its own random stream."""
     edges = strip_edges(path, s_start, s_end)
     parts = [
-        ground_plane(path, palette),
+        ground_plane(path.position, palette),
         ground_band(path, edges, CARRIAGEWAY_LEFT, 0.0, 0.0, look.carriageway, 1.0, 0.0),
         ground_band(path, edges, 0.0, CARRIAGEWAY_RIGHT, 0.0, look.carriageway, 1.0, -CARRIAGEWAY_LEFT),
         ground_band(path, edges, ONCOMING_LEFT, ONCOMING_RIGHT, 0.0, look.oncoming, 1.0, 0.0),
@@ -1492,6 +1505,10 @@ def build_scenario(name: str, n_frames: int | None = None, size: tuple[int, int]
         poses, scene = nearmiss_world(frames, seed)
     elif name == "highway":
         poses, scene = highway_world(times, seed)
+    elif name == "city":
+        from pld_slam.synth.city import city_world  # the city is built of this module's streets
+
+        poses, scene = city_world(times, seed)
     elif name in TRAFFIC_WORLDS:
         poses, scene = TRAFFIC_WORLDS[name](times, seed)
     else:

@@ -14,6 +14,11 @@ its facade's foot, with z pointing into the building). ``T_w_o`` places an objec
 What changes over a sequence: movers (`MovingObject`, a pose per frame), transient static
 quads (`Transient`, which exist for a span of frames: parked cars that differ between two
 visits of a place) and the light (`Scene.light` and `Scene.exposure`, optionally per frame).
+
+A scene may have a view distance (`Scene.view_index`, a `QuadGrid`): then a frame is drawn
+from the quads within that distance of the camera only (`Scene.quads_near`), so a large
+world (a city) costs per frame what the camera's surroundings cost. Without one (every
+scenario but the city) all quads are drawn, as they always were.
 """
 
 from collections.abc import Sequence
@@ -309,6 +314,10 @@ class MovingObject:
         """The id stamped on the object's quads."""
         return int(self.quads.object_id[0])
 
+    def radius(self) -> float:
+        """Distance [m] from the object's origin to its farthest corner."""
+        return float(np.linalg.norm(self.quads.corners(), axis=2).max())
+
     def moves_at(self, frame: int) -> bool:
         """Whether the object moves at ``frame``: its pose there differs from the frame
         before's (frame 0: from frame 1's). A parked car that has not pulled out yet, or a
@@ -343,6 +352,83 @@ class Transient:
         return self.quads.select((self.first <= frame) & (frame < self.end))
 
 
+def ground_boxes(quads: Quads) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners (Q, 2) of each quad's box on the ground plane, as ``(x, z)`` [m]."""
+    xz = quads.corners()[:, :, [0, 2]]
+    return xz.min(axis=1), xz.max(axis=1)
+
+
+@dataclass(frozen=True)
+class QuadGrid:
+    """Static quads binned by where they lie on the ground, to find those near a point fast.
+
+    The ground ``(x, z)`` is cut into square cells; a quad is listed in every cell its box on
+    the ground (`ground_boxes`) overlaps. `near` looks at the cells around a point only, so
+    its cost depends on how much stands near the point, not on the size of the world.
+
+    Attributes
+    ----------
+    view_distance : float
+        Reach [m] of `near`: a quad is near when its ground box comes this close.
+    cell : float
+        Side [m] of a cell.
+    low : np.ndarray
+        (2,) ``(x, z)`` [m] of the lower corner of cell ``(0, 0)``.
+    shape : tuple of int
+        Cells along x and along z.
+    start : np.ndarray
+        (C + 1,) int64 where each cell's entries begin in ``quad`` (cells row by row: index
+        ``iz * shape[0] + ix``).
+    quad : np.ndarray
+        (E,) int64 index of the quad of each entry, cell by cell, ascending within a cell.
+    box_low, box_high : np.ndarray
+        (Q, 2) each quad's box on the ground, ``(x, z)`` [m].
+    """
+
+    view_distance: float
+    cell: float
+    low: np.ndarray
+    shape: tuple[int, int]
+    start: np.ndarray
+    quad: np.ndarray
+    box_low: np.ndarray
+    box_high: np.ndarray
+
+    @classmethod
+    def build(cls, quads: Quads, view_distance: float, cell: float = 50.0) -> "QuadGrid":
+        """The grid of ``quads`` (world frame) for `near` within ``view_distance`` [m]."""
+        box_low, box_high = ground_boxes(quads)
+        low = box_low.min(axis=0)
+        first = np.floor((box_low - low) / cell).astype(np.int64)
+        last = np.floor((box_high - low) / cell).astype(np.int64)
+        shape = tuple(int(n) for n in last.max(axis=0) + 1)
+        spans = last - first + 1
+        counts = spans[:, 0] * spans[:, 1]
+        quad = np.repeat(np.arange(len(quads)), counts)
+        entry = np.arange(len(quad)) - np.repeat(np.cumsum(counts) - counts, counts)
+        ix = first[quad, 0] + entry % spans[quad, 0]
+        iz = first[quad, 1] + entry // spans[quad, 0]
+        cell_of = iz * shape[0] + ix
+        order = np.argsort(cell_of, kind="stable")
+        start = np.searchsorted(cell_of[order], np.arange(shape[0] * shape[1] + 1))
+        return cls(view_distance, cell, low, shape, start, quad[order], box_low, box_high)
+
+    def near(self, centre: np.ndarray) -> np.ndarray:
+        """Indices (ascending) of the quads whose ground box comes within `view_distance`
+        of the world point ``centre`` (3,), measured on the ground (x and z)."""
+        point = np.asarray(centre, dtype=np.float64)[[0, 2]]
+        first = np.maximum(np.floor((point - self.view_distance - self.low) / self.cell).astype(np.int64), 0)
+        last = np.minimum(np.floor((point + self.view_distance - self.low) / self.cell).astype(np.int64),
+                          np.array(self.shape) - 1)
+        if (first > last).any():
+            return np.zeros(0, dtype=np.int64)
+        rows = [self.quad[self.start[iz * self.shape[0] + first[0]]:self.start[iz * self.shape[0] + last[0] + 1]]
+                for iz in range(first[1], last[1] + 1)]
+        candidates = np.unique(np.concatenate(rows))
+        gap = np.maximum(np.maximum(self.box_low[candidates] - point, point - self.box_high[candidates]), 0.0)
+        return candidates[np.einsum("qi,qi->q", gap, gap) <= self.view_distance ** 2]
+
+
 @dataclass(frozen=True)
 class Scene:
     """Everything the renderer needs: static quads, movers, textures, the light.
@@ -363,6 +449,9 @@ class Scene:
         None for 1 throughout.
     transient : Transient or None
         Static quads that exist for some frames only; None for none.
+    view_index : QuadGrid or None
+        The static quads binned for `quads_near`, with the view distance beyond which
+        nothing is drawn; None to draw everything at every frame.
     """
 
     static: Quads
@@ -371,6 +460,7 @@ class Scene:
     light: np.ndarray
     exposure: np.ndarray | None = None
     transient: Transient | None = None
+    view_index: QuadGrid | None = None
 
     def quads_at(self, frame: int) -> Quads:
         """All quads in the world frame at ``frame``: the static ones, the transient ones
@@ -378,6 +468,20 @@ class Scene:
         present = [] if self.transient is None else [self.transient.at(frame)]
         movers = [obj.quads.transformed(obj.poses[frame]) for obj in self.moving]
         return Quads.concat([self.static, *present, *movers])
+
+    def quads_near(self, frame: int, centre: np.ndarray) -> Quads:
+        """The quads of `quads_at` that a camera at the world point ``centre`` (3,) draws:
+        all of them without a `view_index`; else the static ones the index finds within
+        its view distance (on the ground), the transient ones that exist then, and the
+        movers whose bounding circle comes that close, in that order."""
+        if self.view_index is None:
+            return self.quads_at(frame)
+        reach = self.view_index.view_distance
+        ground = np.asarray(centre, dtype=np.float64)[[0, 2]]
+        present = [] if self.transient is None else [self.transient.at(frame)]
+        movers = [obj.quads.transformed(obj.poses[frame]) for obj in self.moving
+                  if np.linalg.norm(obj.poses[frame][[0, 2], 3] - ground) <= reach + obj.radius()]
+        return Quads.concat([self.static.select(self.view_index.near(centre)), *present, *movers])
 
     def moving_ids_at(self, frame: int) -> np.ndarray:
         """Object ids (M,) of the movers that move at ``frame`` (`MovingObject.moves_at`)."""
