@@ -2,9 +2,9 @@
 
 A textured street scene made of quads (facades with windows, paving, road markings, parked
 cars, poles, crates), a city of such streets on a grid, or a motorway (guard rails,
-gantries, noise barriers, trees, distant buildings and hills), rendered as rectified stereo pairs by a vectorised ray caster from
-the default camera or KITTI's (`CAMERAS`), with exact ground-truth poses and per-frame
-masks of the pixels on moving objects.
+gantries, noise barriers, trees, distant buildings and hills), rendered as rectified
+stereo pairs by a vectorised ray caster from the default camera or KITTI's (`CAMERAS`),
+with exact ground-truth poses and per-frame masks of the pixels on moving objects.
 
 - `build_scenario` builds one of `SCENARIOS` in memory; ``Scenario.render_frame(i)`` gives
   the left and right uint8 images and the left dynamic mask of frame ``i``.
