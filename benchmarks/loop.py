@@ -255,10 +255,9 @@ def circle_pose_graph(n: int) -> PoseGraph:
     edge_i = np.append(chain, n - 1)
     edge_j = np.append(chain + 1, 0)
     T_i_j = np.concatenate([measured, relative_poses(truth, np.array([n - 1]), np.array([0]))])
-    parent = np.append(-1, chain)
     fixed = np.zeros(n, dtype=bool)
     fixed[0] = True
-    return PoseGraph(T_c_w=np.array(drifted), fixed=fixed, edge_i=edge_i, edge_j=edge_j, T_i_j=T_i_j, parent=parent)
+    return PoseGraph(T_c_w=np.array(drifted), fixed=fixed, edge_i=edge_i, edge_j=edge_j, T_i_j=T_i_j)
 
 
 def _median_ms(call, repeats: int = 50) -> float:

@@ -1,4 +1,4 @@
-"""The pose graph: a perturbed loop closed exactly, the gauge held, any spanning tree."""
+"""The pose graph: a perturbed loop closed exactly, in few evaluations, the gauge held."""
 
 import numpy as np
 
@@ -35,7 +35,7 @@ def loop_graph(count: int, seed: int) -> tuple[PoseGraph, np.ndarray]:
     fixed = np.zeros(count, dtype=bool)
     fixed[0] = True
     start = drifted_chain(truth, measured, seed)
-    return PoseGraph(start, fixed, edge_i, edge_j, measured, parent=np.arange(count) - 1), truth
+    return PoseGraph(start, fixed, edge_i, edge_j, measured), truth
 
 
 def test_a_perturbed_loop_is_closed_exactly():
@@ -49,14 +49,34 @@ def test_a_perturbed_loop_is_closed_exactly():
 
 def test_the_fixed_pose_does_not_move_and_a_consistent_graph_stays_put():
     graph, truth = loop_graph(30, seed=1)
-    consistent = PoseGraph(truth, graph.fixed, graph.edge_i, graph.edge_j, graph.T_i_j, graph.parent)
+    consistent = PoseGraph(truth, graph.fixed, graph.edge_i, graph.edge_j, graph.T_i_j)
     np.testing.assert_allclose(optimize_pose_graph(consistent, max_nfev=10).T_c_w, truth, atol=1e-12)
     result = optimize_pose_graph(graph, max_nfev=40)
     np.testing.assert_array_equal(result.T_c_w[0], graph.T_c_w[0])
 
 
-def test_the_solution_does_not_depend_on_the_spanning_tree():
-    graph, truth = loop_graph(60, seed=2)
-    every_other = PoseGraph(graph.T_c_w, graph.fixed, graph.edge_i, graph.edge_j, graph.T_i_j,
-                            parent=np.r_[-1, np.maximum(np.arange(1, 60) - 2, 0)])
-    np.testing.assert_allclose(optimize_pose_graph(every_other, max_nfev=60).T_c_w, truth, atol=1e-7)
+def two_lap_graph(per_lap: int, revisits: int, seed: int) -> tuple[PoseGraph, np.ndarray]:
+    """Twice round a circle: odometry edges and edges skipping one pose, and the first ``revisits``
+    poses of the second lap tied to the same poses of the first (a revisit's covisibility);
+    measured exactly, started from a drifted chain. Returns the graph and the true poses."""
+    lap = circle_poses(per_lap, radius=30.0)
+    truth = np.concatenate([lap, lap])
+    count = len(truth)
+    steps = np.r_[np.arange(count - 1), np.arange(count - 2)]
+    revisit = np.arange(revisits)
+    edge_i = np.r_[steps, per_lap + revisit]
+    edge_j = np.r_[steps + np.r_[np.ones(count - 1, int), np.full(count - 2, 2)], revisit]
+    measured = relative_poses(truth, edge_i, edge_j)
+    fixed = np.zeros(count, dtype=bool)
+    fixed[0] = True
+    return PoseGraph(drifted_chain(truth, measured, seed), fixed, edge_i, edge_j, measured), truth
+
+
+def test_a_second_lap_metres_off_closes_in_a_dozen_evaluations():
+    """600 keyframes, the second lap 3 m off where it meets the first: the whitened unknowns reach the
+    optimum in 11 evaluations (one rigid motion per subtree, the unknowns before: 1.5 m off after 12)."""
+    graph, truth = two_lap_graph(300, revisits=60, seed=3)
+    drift = np.linalg.norm(inverse(graph.T_c_w)[:, :3, 3] - inverse(truth)[:, :3, 3], axis=1).max()
+    assert drift > 2.0
+    result = optimize_pose_graph(graph, max_nfev=12)
+    np.testing.assert_allclose(result.T_c_w, truth, atol=1e-6)

@@ -309,10 +309,8 @@ class LoopClosing:
             relative_poses(old_poses, edge_i[: len(edges)], edge_j[: len(edges)]),
             np.array([edge.T_i_j for edge in loops]).reshape(-1, 4, 4),
         ])
-        parent = np.array([node.get(self.map.covisibility.parent[k], -1) for k in ids.tolist()], dtype=np.int64)
         T_c_w = np.array([self.map.keyframes[k].T_c_w for k in ids.tolist()])
-        graph = PoseGraph(T_c_w=T_c_w, fixed=ids == ids.min(), edge_i=edge_i, edge_j=edge_j, T_i_j=measured,
-                          parent=parent)
+        graph = PoseGraph(T_c_w=T_c_w, fixed=ids == ids.min(), edge_i=edge_i, edge_j=edge_j, T_i_j=measured)
         result = optimize_pose_graph(graph, self._config.loop.pose_graph_max_nfev)
         self._move_landmarks_with_keyframes(ids, T_c_w, result.T_c_w)
         for n, keyframe_id in enumerate(ids.tolist()):
