@@ -478,7 +478,7 @@ class _SparseProblem:
         return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
 
     def jacobian_operator(self, y: np.ndarray) -> LinearOperator:
-        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` uses without copying it (module docstring)."""
+        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring)."""
         jac = self.jacobian(y)
         return LinearOperator(jac.shape, matvec=jac.dot, rmatvec=jac.T.dot, dtype=np.float64)
 
