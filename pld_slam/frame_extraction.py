@@ -258,14 +258,14 @@ def _become_extractor(extract: Callable[[int], ExtractedFrame], parent: int) -> 
     global _child_extract
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    _die_with_parent()
+    die_with_parent()
     if os.getppid() != parent:  # killed before that
         os._exit(1)
     one_blas_thread()  # takes effect at once, for the child's life
     _child_extract = extract
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Ask Linux for SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``), where the C
     library gives ``prctl`` to ctypes; elsewhere (a static build) a killed parent leaves the
     child waiting, which costs memory, not the run."""

@@ -16,8 +16,9 @@ from click.testing import CliRunner
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import ConfigError
+from pld_slam.report import cells
 from pld_slam.report.ablation import prepare_ablation, write_report
-from pld_slam.report.cells import cell_key, execute_cell, plan_cells, sequence_identity, unique_labels
+from pld_slam.report.cells import CellSpec, cell_key, execute_cell, plan_cells, sequence_identity, unique_labels
 from pld_slam.report.runner import run_cells
 from pld_slam.report.store import ROW_COLUMNS, cell_dir, is_finished, read_cell, recorded_rows
 from pld_slam.report.suite import BUILTIN_SUITES, Suite, Variant, load_suite
@@ -137,13 +138,65 @@ def test_a_cell_over_its_time_limit_fails_saying_so(tiny, tmp_path):
     assert outcome.status == "failed" and outcome.reason == "time limit of 0.3 s reached"
 
 
+GREEDY_RUN = """
+import subprocess, sys
+ballast = "import sys; ballast = b'x' * (300 << 20); sys.stdin.read()"  # held until its parent is gone
+subprocess.Popen([sys.executable, "-c", ballast], stdin=subprocess.PIPE).wait()
+"""
+"""A run that stays small itself while its child takes 300 MiB, as a run's front end would."""
+
+NOWHERE = CellSpec("key", "sequence", "variant", "/nowhere", "{}\n")
+
+
+def test_a_cell_whose_run_with_its_children_exceeds_its_memory_limit_fails_saying_so(monkeypatch):
+    if not cells.memory_limit_enforced():
+        pytest.skip("the memory limit needs Linux's /proc")
+    monkeypatch.setattr(cells, "run_command", lambda spec, run_dir, config_path: [sys.executable, "-c", GREEDY_RUN])
+    start = time.monotonic()
+    outcome = execute_cell(NOWHERE, timeout=10, max_memory_mb=100)  # the time limit ends it if the memory's does not
+    assert outcome.status == "failed" and outcome.reason == "memory limit of 100 MiB reached"
+    assert time.monotonic() - start < 5
+
+
+def test_a_cells_run_dies_with_the_process_that_started_it(tmp_path):
+    if not cells.memory_limit_enforced():
+        pytest.skip("needs Linux (prctl, /proc)")
+    pid_file = tmp_path / "run.pid"
+    run = f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(60)"
+    worker = subprocess.Popen([sys.executable, "-c", (
+        "import sys; from pld_slam.report import cells; "
+        f"cells.run_command = lambda *_: [sys.executable, '-c', {run!r}]; "
+        f"cells.execute_cell(cells.CellSpec('key', 'sequence', 'variant', '/nowhere', '{{}}'))")],
+        env={**os.environ, "TMPDIR": str(tmp_path)})  # where the killed cell's scratch stays
+    deadline = time.monotonic() + 60
+    while not (pid_file.is_file() and pid_file.read_text()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    run_pid = int(pid_file.read_text())
+    worker.kill()  # as a Dask worker killed mid-cell
+    worker.wait()
+    deadline = time.monotonic() + 5
+    while alive(run_pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not alive(run_pid)
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rpartition(")")[2].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
 def test_ablate_killed_half_way_and_started_again_redoes_no_finished_cell(tiny, tmp_path):
     suite_path = write_suite(tmp_path / "two.yaml",
                              "variants:\n  a: {lines.enabled: true}\n  b: {lines.enabled: false}\n")
     out = tmp_path / "out"
     command = [sys.executable, "-m", "pld_slam_cli", "ablate", str(tiny), "--suite", suite_path,
                "--out", str(out), "--workers", "1"]
-    first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True,
+                             env={**os.environ, "TMPDIR": str(tmp_path)})  # where the killed cell's scratch stays
     deadline = time.monotonic() + 120
     while not list(out.glob("cells/*/*/cell.json")) and first.poll() is None and time.monotonic() < deadline:
         time.sleep(0.2)
@@ -155,6 +208,7 @@ def test_ablate_killed_half_way_and_started_again_redoes_no_finished_cell(tiny, 
     second = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert second.returncode == 0, second.stderr
     assert "2 cells: 1 run (0 failed), 1 reused" in second.stdout
+    assert re.search(r"^cell 1/1 synth_static / [ab]: ok, 8 frames, ATE \d\.\d{4} m, \d+\.\d s$", second.stdout, re.M)
     assert done.read_text() == finished
     assert len(list(out.glob("cells/*/*/cell.json"))) == 2
 
@@ -238,7 +292,7 @@ def test_a_dask_cluster_gives_the_same_results_as_the_local_pool_cell_for_cell(t
     dask_cells = prepare_ablation(tmp_path / "dask", [tiny], TWO_VARIANTS)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
-        run_cells(tmp_path / "dask", dask_cells, scheduler=cluster.scheduler_address)
+        run_cells(tmp_path / "dask", dask_cells, scheduler=cluster.scheduler_address, max_memory_mb=4000)
     local, remote = recorded_rows(tmp_path / "local"), recorded_rows(tmp_path / "dask")
     assert [r["status"] for r in remote] == ["ok", "ok"]
     for a, b in zip(local, remote, strict=True):

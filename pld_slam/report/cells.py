@@ -5,8 +5,20 @@ machine can run, carrying the cell's effective config (defaults, the sequence's 
 file, the ablation's ``--set``, then the variant's overlay, so that the variant always
 says what it says) and its key. `execute_cell` runs one: ``pld-slam run`` in a child
 process, so a crash, a killed worker or an exhausted memory costs that cell only, and a
-time limit can stop it. It returns the run's files as bytes (`CellOutcome`), so a Dask
-worker needs no shared output folder, only the sequences at the same path.
+time limit and a memory limit can stop it. It returns the run's files as bytes
+(`CellOutcome`), so a Dask worker needs no shared output folder, only the sequences at the
+same path.
+
+The memory limit. A thread of the process that started the child measures the resident
+memory of the child and of its own children (the run's forked front end) every
+`MEMORY_POLL_SECONDS` from Linux's ``/proc``; Dask's memory monitor sees only its worker
+process, not the cell it started. A limit on address space (``RLIMIT_AS``) cannot stand
+in: numba, OpenCV and OpenBLAS reserve far more than they use (a 600-frame ``city`` run on
+two cores peaks at 1.6 GiB of address space for 0.64 GiB resident; numpy and OpenCV alone
+take some 70 MiB more of it per thread, so per core), and running out of it is a
+``bad_alloc`` somewhere, not a limit reached. The child also dies with the thread that
+started it (``prctl(PR_SET_PDEATHSIG)``): a Dask worker killed mid-cell does not leave
+its cell running, unwatched, beside the cell's retry.
 
 The key. A finished cell is reused when its key is unchanged: the SHA-256 of the
 sequence's identity (resolved path, layout, frame count, first and last timestamps),
@@ -24,6 +36,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -32,18 +45,22 @@ from pathlib import Path
 from pld_slam import __version__
 from pld_slam.config import Config, config_to_dict, dump_config
 from pld_slam.datasets import StereoSequence
+from pld_slam.frame_extraction import die_with_parent
 from pld_slam.loop.loop_closing import check_vocabulary_given
 from pld_slam.report.suite import Suite
 from pld_slam.run_config import load_run_config
 
 INTERRUPT_GRACE_SECONDS = 30.0
-"""After its time limit a cell gets SIGTERM, which ``pld-slam run`` handles as Ctrl-C (it
-then writes its trajectory so far), and this long to exit before it is killed."""
+"""After its time or memory limit a cell gets SIGTERM, which ``pld-slam run`` handles as
+Ctrl-C (it then writes its trajectory so far), and this long to exit before it is killed."""
+
+MEMORY_POLL_SECONDS = 0.5
+"""How often a cell with a memory limit has its resident memory measured [s]."""
 
 STATUSES = ("ok", "stopped", "failed")
 """A cell's outcome: ``ok`` (the run completed), ``stopped`` (the run ended early by itself,
 e.g. tracking lost for good; its trajectory so far is kept), ``failed`` (error, crash,
-time limit, interrupt: the reason says which)."""
+time or memory limit, interrupt: the reason says which)."""
 
 
 @dataclass(frozen=True)
@@ -185,7 +202,7 @@ def run_command(spec: CellSpec, run_dir: Path, config_path: Path) -> list[str]:
     return command
 
 
-def execute_cell(spec: CellSpec, timeout: float | None = None) -> CellOutcome:
+def execute_cell(spec: CellSpec, timeout: float | None = None, max_memory_mb: int | None = None) -> CellOutcome:
     """Run ``spec`` in a child process and collect its files; never raises for a failed run.
 
     Parameters
@@ -195,44 +212,112 @@ def execute_cell(spec: CellSpec, timeout: float | None = None) -> CellOutcome:
     timeout : float or None
         Time limit [s]: the child then gets SIGTERM (and writes what it has, as after
         Ctrl-C), and is killed `INTERRUPT_GRACE_SECONDS` later if still running.
+    max_memory_mb : int or None
+        Memory limit [MiB] on `tree_resident_mb` of the child, checked every
+        `MEMORY_POLL_SECONDS`; over it the child is stopped as at the time limit. Not
+        enforced where ``/proc`` does not list children (`memory_limit_enforced`).
     """
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="pld-slam-cell-") as scratch:
         config_path = Path(scratch) / "config.yaml"
         config_path.write_text(spec.config_yaml)
         run_dir = Path(scratch) / "run"
-        returncode, stderr, timed_out = _run_child(run_command(spec, run_dir, config_path), timeout)
+        command = run_command(spec, run_dir, config_path)
+        returncode, stderr, limit_reached = _run_child(command, timeout, max_memory_mb)
         files = {path.name: path.read_bytes() for path in sorted(run_dir.glob("*")) if path.is_file()}
-    status, reason = _status(returncode, stderr, timed_out, timeout, files)
+    status, reason = _status(returncode, stderr, limit_reached, files)
     return CellOutcome(spec.key, status, reason, time.perf_counter() - start, files)
 
 
-def _run_child(command: list[str], timeout: float | None) -> tuple[int, str, bool]:
-    """Run ``command``; its return code, stderr, and whether the time limit stopped it."""
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        _, stderr = child.communicate(timeout=timeout)
-        return child.returncode, stderr, False
-    except subprocess.TimeoutExpired:
-        child.send_signal(signal.SIGTERM)  # not SIGINT, which a shell's background job ignores
+def process_tree(pid: int) -> list[int]:
+    """Process ``pid`` and its descendants, from Linux's ``/proc/PID/task/TID/children`` (every
+    thread's: a child is listed under the thread that started it); ``[pid]`` elsewhere."""
+    tree, pending = [], [pid]
+    while pending:
+        member = pending.pop()
+        tree.append(member)
+        for children in Path(f"/proc/{member}/task").glob("*/children"):
+            try:
+                pending += [int(child) for child in children.read_text().split()]
+            except OSError:  # the thread ended meanwhile
+                continue
+    return tree
+
+
+def tree_resident_mb(pid: int) -> float:
+    """Resident memory of process ``pid`` and its descendants [MiB] (``/proc/PID/statm``; 0
+    without ``/proc``). Pages a forked child still shares with its parent count in both:
+    an upper bound."""
+    pages = 0
+    for member in process_tree(pid):
         try:
-            _, stderr = child.communicate(timeout=INTERRUPT_GRACE_SECONDS)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            _, stderr = child.communicate()
-        return child.returncode, stderr, True
+            pages += int(Path(f"/proc/{member}/statm").read_text().split()[1])
+        except OSError:  # exited meanwhile
+            continue
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def memory_limit_enforced() -> bool:
+    """Whether this machine can enforce a cell's memory limit: ``/proc`` lists a process's children (Linux)."""
+    return Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").is_file()
+
+
+def _run_child(command: list[str], timeout: float | None, max_memory_mb: int | None) -> tuple[int, str, str]:
+    """Run ``command`` until it ends or `_LimitWatch` stops it; its return code, stderr, and
+    the limit it reached (empty if none)."""
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                             preexec_fn=die_with_parent if os.name == "posix" else None)
+    watch = _LimitWatch(child, timeout, max_memory_mb)
+    watch.start()
+    try:
+        _, stderr = child.communicate()
     except BaseException:  # Ctrl-C or a cancelled task: take the child down with us
         child.kill()
         child.wait()
         raise
+    finally:
+        watch.finished.set()
+        watch.join()
+    return child.returncode, stderr, watch.reached
 
 
-def _status(returncode: int, stderr: str, timed_out: bool, timeout: float | None,
-            files: dict[str, bytes]) -> tuple[str, str]:
-    """The `STATUSES` entry and reason of a finished child process."""
-    if timed_out:
-        return "failed", f"time limit of {timeout:g} s reached"
+class _LimitWatch(threading.Thread):
+    """A thread stopping a child process at its time or memory limit (`execute_cell`) until
+    ``finished`` is set; ``reached`` then says which limit it reached (empty if none)."""
+
+    def __init__(self, child: subprocess.Popen, timeout: float | None, max_memory_mb: int | None):
+        super().__init__(name="pld-slam-cell-limits", daemon=True)
+        self.child, self.timeout, self.max_memory_mb = child, timeout, max_memory_mb
+        self.finished = threading.Event()
+        self.reached = ""
+
+    def run(self) -> None:
+        self.reached = self._limit_reached()
+        if self.reached:
+            self.child.send_signal(signal.SIGTERM)  # not SIGINT, which a shell's background job ignores
+            if not self.finished.wait(INTERRUPT_GRACE_SECONDS):
+                self.child.kill()
+
+    def _limit_reached(self) -> str:
+        """Wait for a limit and return what it says, or return "" once ``finished`` is set."""
+        deadline = None if self.timeout is None else time.monotonic() + self.timeout
+        while True:
+            waits = [] if self.max_memory_mb is None else [MEMORY_POLL_SECONDS]
+            if deadline is not None:
+                waits.append(max(0.0, deadline - time.monotonic()))
+            if self.finished.wait(min(waits, default=None)):
+                return ""
+            if deadline is not None and time.monotonic() >= deadline:
+                return f"time limit of {self.timeout:g} s reached"
+            if self.max_memory_mb is not None and tree_resident_mb(self.child.pid) > self.max_memory_mb:
+                return f"memory limit of {self.max_memory_mb} MiB reached"
+
+
+def _status(returncode: int, stderr: str, limit_reached: str, files: dict[str, bytes]) -> tuple[str, str]:
+    """The `STATUSES` entry and reason of a finished child process (``limit_reached``: see `_run_child`)."""
+    if limit_reached:
+        return "failed", limit_reached
     if returncode != 0:
         if returncode < 0:
             return "failed", f"killed by signal {-returncode} ({signal.Signals(-returncode).name})"
