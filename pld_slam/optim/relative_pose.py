@@ -43,12 +43,17 @@ def relative_pose_residual(
     T_i_w0, T_j_w0 : (E, 4, 4) the endpoints' ``T_c_w`` before the updates.
     T_i_j : (E, 4, 4) measured pose of camera j in camera i.
     """
-    T_i_w = se3_exp(delta_i) @ T_i_w0
-    T_j_w = se3_exp(delta_j) @ T_j_w0
     measured_inverse = inverse(T_i_j)
-    error = measured_inverse @ T_i_w @ inverse(T_j_w)
+    error = relative_pose_error(se3_exp(delta_i) @ T_i_w0, se3_exp(delta_j) @ T_j_w0, T_i_j)
     residual = se3_log(error)
     log_jacobian = np.linalg.inv(se3_left_jacobian(residual))
     jac_i = log_jacobian @ se3_adjoint(measured_inverse) @ se3_left_jacobian(delta_i)
     jac_j = -log_jacobian @ se3_adjoint(error) @ se3_left_jacobian(delta_j)
     return RelativePoseResidual(residual, jac_i, jac_j)
+
+
+def relative_pose_error(T_i_w: np.ndarray, T_j_w: np.ndarray, T_i_j: np.ndarray) -> np.ndarray:
+    """The poses ``E = inverse(T_i_j) @ T_ci_w @ inverse(T_cj_w)`` (E, 4, 4) inside the log of the
+    module docstring, of E edges between poses ``T_i_w``, ``T_j_w`` (E, 4, 4) measured as ``T_i_j``;
+    ``se3_log`` of it is the residual, for a solver that needs no Jacobian at a point."""
+    return inverse(T_i_j) @ T_i_w @ inverse(T_j_w)
