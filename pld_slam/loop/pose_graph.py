@@ -143,10 +143,7 @@ def _solve_round(graph: PoseGraph, max_nfev: int):
 _LSMR_MAX_ITERATIONS = 30
 """LSMR iterations per step: in the whitened unknowns a step's linear problem is near the
 identity, and more iterations per step take fewer steps (the city's graphs at 404 and 914
-keyframes: 6 and 10 evaluations with 30, 9 and 14 with 10)."""
-_FTOL = 1e-8
-"""A round's `least_squares` stops once a step lowers the cost by less than this share of it
-(at 1e-12 every round ran its `_ROUND_NFEV` evaluations to the end), the same optimum within 0.2 mm."""
+keyframes: 8 and 12 evaluations with 30, 12 and 16 with 10)."""
 _DAMPING = 1e-9
 """Added to the Gauss-Newton matrix, times its largest diagonal entry, before it is factored:
 a chain's weakest direction may be nearly unseen, and the factor must exist."""
