@@ -12,6 +12,7 @@ from types import SimpleNamespace
 
 import pytest
 from click.testing import CliRunner
+from processes import ends_within
 
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
@@ -174,19 +175,7 @@ def test_a_cells_run_dies_with_the_process_that_started_it(tmp_path):
     run_pid = int(pid_file.read_text())
     worker.kill()  # as a Dask worker killed mid-cell
     worker.wait()
-    deadline = time.monotonic() + 5
-    while alive(run_pid) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not alive(run_pid)
-
-
-def alive(pid: int) -> bool:
-    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rpartition(")")[2].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
+    assert ends_within(run_pid, 5.0)
 
 
 def test_ablate_killed_half_way_and_started_again_redoes_no_finished_cell(tiny, tmp_path):

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+from processes import ends_within, running
 from tqdm import tqdm
 
 from pld_slam import frame_extraction
@@ -249,16 +250,6 @@ def test_the_worker_is_a_process_only_where_forking_is_safe(monkeypatch):
     assert background_worker("process", files) == "thread"
 
 
-def running(pid: int) -> bool:
-    """Whether process ``pid`` exists and is not a zombie waiting to be reaped (one reaped between
-    opening its stat file and reading it raises ProcessLookupError: seen in a fresh virtual environment)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
-
-
 @linux_only
 def test_the_child_dies_with_a_killed_parent():
     script = (
@@ -275,10 +266,7 @@ def test_the_child_dies_with_a_killed_parent():
     assert running(child)
     parent.kill()
     parent.wait()
-    deadline = time.monotonic() + 5.0
-    while running(child) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not running(child)
+    assert ends_within(child, 5.0)
 
 
 def opencv_pool_in_the_child(index: int) -> ExtractedFrame:
