@@ -14,10 +14,10 @@ thread during the calibration and `run` (`pld_slam.blas.one_blas_thread`; a call
 stepping `process_frame` itself can wrap its loop in it).
 
 Before the first frame, every numba kernel is compiled (`pld_slam.kernels`; seconds on a
-machine's first run, outside the run's wall time), then the stereo rig's disparity offset is estimated from frame pairs
-spread over the sequence (`pld_slam.stereo_calibration`, ``calibration.disparity_offset``);
-every stage then uses `System.camera`, the sequence's camera with that offset, and the
-estimate's time counts in the run's wall time.
+machine's first run, outside the run's wall time), then the stereo rig's disparity offset
+is estimated from frame pairs spread over the sequence (`pld_slam.stereo_calibration`,
+``calibration.disparity_offset``); every stage then uses `System.camera`, the sequence's
+camera with that offset, and the estimate's time counts in the run's wall time.
 
 Every frame's pose. With a map, a frame's pose is stored relative to its reference
 keyframe (the last keyframe inserted before it; a keyframe is its own), and
@@ -353,10 +353,9 @@ class System:
     def _add(self, record: FrameRecord, start: float) -> FrameRecord:
         """Keep ``record`` with the map's size and the memory now; return what was kept."""
         world_map = self.result.map
-        if world_map is not None:
-            record = replace(record, map_size=(len(world_map.keyframes), world_map.points.n_alive,
-                                               world_map.lines.n_alive))
-        record = replace(record, rss_mb=resident_mb())
+        map_size = (0, 0, 0) if world_map is None else (
+            len(world_map.keyframes), world_map.points.n_alive, world_map.lines.n_alive)
+        record = replace(record, map_size=map_size, rss_mb=resident_mb())
         self.result.records.append(record)
         self.result.wall_seconds += time.perf_counter() - start
         if self._record_observer is not None:

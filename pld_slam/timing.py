@@ -1,5 +1,5 @@
 """Wall-clock and memory readings: `ms_since`, `StageClock` (the wall time of named stages lap
-by lap) and `resident_mb`."""
+by lap), `resident_mb` and `process_resident_mb`."""
 
 import os
 import resource
@@ -26,11 +26,17 @@ class StageClock:
         self._last = now
 
 
+def process_resident_mb(pid: int | str) -> float:
+    """Resident memory of process ``pid`` (or ``"self"``) now [MiB], from Linux's ``/proc/PID/statm``;
+    `OSError` where there is none (no such process, no ``/proc``)."""
+    with open(f"/proc/{pid}/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
 def resident_mb() -> float:
     """This process's resident memory now [MiB]; where ``/proc`` is missing (macOS), its peak so far."""
     try:
-        with open("/proc/self/statm") as statm:
-            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+        return process_resident_mb("self")
     except OSError:
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         return peak / 2**20 if sys.platform == "darwin" else peak / 2**10

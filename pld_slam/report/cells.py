@@ -49,6 +49,7 @@ from pld_slam.frame_extraction import die_with_parent
 from pld_slam.loop.loop_closing import check_vocabulary_given
 from pld_slam.report.suite import Suite
 from pld_slam.run_config import load_run_config
+from pld_slam.timing import process_resident_mb
 
 INTERRUPT_GRACE_SECONDS = 30.0
 """After its time or memory limit a cell gets SIGTERM, which ``pld-slam run`` handles as
@@ -245,16 +246,16 @@ def process_tree(pid: int) -> list[int]:
 
 
 def tree_resident_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` and its descendants [MiB] (``/proc/PID/statm``; 0
+    """Resident memory of process ``pid`` and its descendants [MiB] (`process_resident_mb`; 0
     without ``/proc``). Pages a forked child still shares with its parent count in both:
     an upper bound."""
-    pages = 0
+    total = 0.0
     for member in process_tree(pid):
         try:
-            pages += int(Path(f"/proc/{member}/statm").read_text().split()[1])
+            total += process_resident_mb(member)
         except OSError:  # exited meanwhile
             continue
-    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    return total
 
 
 def memory_limit_enforced() -> bool:
