@@ -22,7 +22,6 @@ Issue 40's figures are for ``city`` at its default length (4,541 frames, KITTI 0
 """
 
 import argparse
-import json
 import os
 import resource
 import subprocess
@@ -32,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from speed import cli_run, stage_means
 
 from pld_slam.datasets import open_sequence
 
@@ -56,23 +56,19 @@ def rendered_sequence(out: Path, scenario: str, frames: int | None, seed: int, c
 
 
 def run(sequence: Path, out: Path, *overrides: str) -> tuple[pd.DataFrame, dict, float]:
-    """``pld-slam run`` into ``out``: its ``frames.csv``, ``summary.json`` and peak resident memory [MiB]."""
-    command = [sys.executable, "-m", "pld_slam_cli", "run", str(sequence), "--out", str(out)]
-    for override in overrides:
-        command += ["--set", override]
+    """`speed.cli_run` into ``out`` with ``--set`` ``overrides``: its ``frames.csv``, ``summary.json``
+    and peak resident memory [MiB]."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    frames, summary = cli_run(sequence, out, *(part for override in overrides for part in ("--set", override)))
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     peak_mb = peak / 2**10 if peak > before else float("nan")  # Linux: KiB; not larger: an earlier child's
-    return pd.read_csv(out / "frames.csv"), json.loads((out / "summary.json").read_text()), peak_mb
+    return frames, summary, peak_mb
 
 
 def block_table(frames: pd.DataFrame, block: int) -> pd.DataFrame:
-    """Per block of ``block`` frames: mean ms of the total and of each stage, the map's size and memory at its end."""
-    stages = [column for column in frames.columns if column.endswith("_ms")]
+    """Per block of ``block`` frames: `speed.stage_means`, the map's size and memory at its end."""
     grouped = frames.assign(block=frames["index"] // block).groupby("block")
-    table = grouped[stages].apply(lambda rows: rows.fillna(0.0).mean())
-    table.columns = [column[:-3] for column in stages]
+    table = pd.DataFrame({number: stage_means(rows) for number, rows in grouped}).T
     ends = grouped[["keyframes", "point_landmarks", "line_landmarks", "rss_mb"]].last()
     table = table.join(ends)
     table.index = [f"{b * block}-{min((b + 1) * block, len(frames)) - 1}" for b in table.index]

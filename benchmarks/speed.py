@@ -62,13 +62,18 @@ def yardstick_ms(sequence_path: Path, frames: int) -> float:
         cv2.setNumThreads(threads)
 
 
-def timed_run(sequence_path: Path, frames: int, out: Path, cache: Path | None = None) -> tuple[pd.DataFrame, dict]:
-    """``pld-slam run`` on the first ``frames`` frames into ``out`` (numba cache ``cache`` if given): its
-    ``frames.csv`` and ``summary.json``."""
-    env = dict(os.environ) if cache is None else {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-    subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence_path), "--out", str(out),
-                    "--max-frames", str(frames)], check=True, env=env, stdout=subprocess.DEVNULL)
+def cli_run(sequence_path: Path, out: Path, *options: str, env: dict | None = None) -> tuple[pd.DataFrame, dict]:
+    """``pld-slam run SEQUENCE --out OUT OPTIONS`` in a child process (environment ``env``, default
+    ours): its ``frames.csv`` and ``summary.json``."""
+    subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence_path), "--out", str(out), *options],
+                   check=True, env=env, stdout=subprocess.DEVNULL)
     return pd.read_csv(out / "frames.csv"), json.loads((out / "summary.json").read_text())
+
+
+def timed_run(sequence_path: Path, frames: int, out: Path, cache: Path | None = None) -> tuple[pd.DataFrame, dict]:
+    """`cli_run` on the first ``frames`` frames, with the numba cache ``cache`` if given."""
+    env = None if cache is None else {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    return cli_run(sequence_path, out, "--max-frames", str(frames), env=env)
 
 
 def stage_means(table: pd.DataFrame) -> dict[str, float]:
