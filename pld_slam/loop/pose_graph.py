@@ -122,20 +122,24 @@ def _cost(graph: PoseGraph) -> float:
 def _solve_round(graph: PoseGraph, max_nfev: int):
     """One `least_squares` solve in the whitened unknowns of `_Whitening`; returns it and the poses it reached."""
     problem = _GraphProblem(graph)
-    whitening = _Whitening(problem.jacobian(np.zeros(problem.n_unknowns)))
+    start = np.zeros(problem.n_unknowns)
+    at_start, jac_at_start = problem.residuals(start), problem.jacobian(start)
+    whitening = _Whitening(jac_at_start)
+
+    def residuals(y: np.ndarray) -> np.ndarray:  # the start's, computed above, when least_squares asks for them
+        return at_start.copy() if not np.any(y) else problem.residuals(whitening.updates(y))
 
     def jacobian(y: np.ndarray) -> LinearOperator:
-        jac = problem.jacobian(whitening.updates(y))
+        jac = jac_at_start if not np.any(y) else problem.jacobian(whitening.updates(y))
         return LinearOperator(
             jac.shape, dtype=np.float64,
             matvec=lambda v: jac @ whitening.updates(v), rmatvec=lambda u: whitening.transpose(jac.T @ u),
         )
 
-    residual = problem.residuals(np.zeros(problem.n_unknowns))
     solution = least_squares(
-        lambda y: problem.residuals(whitening.updates(y)), np.zeros(problem.n_unknowns), jac=jacobian,
+        residuals, start, jac=jacobian,
         method="trf", tr_solver="lsmr", tr_options=dict(maxiter=_LSMR_MAX_ITERATIONS), max_nfev=max_nfev,
-        x_scale=max(1.0, float(np.linalg.norm(residual))), ftol=1e-12, xtol=1e-12, gtol=1e-12,
+        x_scale=max(1.0, float(np.linalg.norm(at_start))), ftol=1e-12, xtol=1e-12, gtol=1e-12,
     )
     return solution, problem.poses(whitening.updates(solution.x))
 
