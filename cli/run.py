@@ -128,7 +128,9 @@ def disparity_offset_rows(estimate: dict | None) -> list[tuple[str, str]]:
         return []
     basis = f"{estimate['pairs']} frame pairs, frame gap {estimate['frame_gap']}, {estimate['ms'] / 1e3:.1f} s"
     if estimate["used"]:
-        return [("disparity offset", f"{estimate['offset_px']:+.3f} px (sigma {estimate['sigma_px']:.3f}, {basis})")]
+        applied, estimated = estimate["offset_px"], estimate["estimate_px"]
+        shrunk = f"shrunk from {estimated:+.3f}, " if applied != estimated else ""
+        return [("disparity offset", f"{applied:+.3f} px ({shrunk}sigma {estimate['sigma_px']:.3f}, {basis})")]
     return [("disparity offset", f"not changed: {estimate['reason']} ({basis})")]
 
 

@@ -80,6 +80,11 @@ class CalibrationConfig:
     min_significance: float = _param(
         2.5, "... and it lies at least this many standard deviations from zero (a smaller one may be noise)", 0.0
     )
+    prior_sigma_px: float = _param(
+        0.0,
+        "a used estimate is shrunk to its posterior mean for rig offsets spread this much about 0 [px] (0: not)",
+        0.0,
+    )
 
 
 @dataclass(frozen=True)

@@ -11,9 +11,10 @@ dominated by scale: the estimate was 1.0 % longer than the ground truth, which a
 0.17 m of the 0.19 m ATE. The images of these frames measure disparities about 0.15-0.2 px
 too large (-0.146 px fitted against the ground-truth motion, -0.197 px found by the
 self-calibration); with that offset removed the bound below holds the issue's figure
-(0.035 m). After Sim(3) alignment, which removes any scale error left, the shape of
-the trajectory is bounded tightly, so that a regression in tracking or mapping shows
-even if one in the calibration hides it.
+(0.035 m); KITTI 04 holds it (0.05 m) since its estimate is applied shrunk towards zero
+(the KITTI family's prior, `pld_slam.stereo_calibration` step 5). After Sim(3) alignment,
+which removes any scale error left, the shape of the trajectory is bounded tightly, so
+that a regression in tracking or mapping shows even if one in the calibration hides it.
 """
 
 from pathlib import Path
@@ -40,7 +41,8 @@ def run_extract(folder: Path):
 @pytest.mark.parametrize(
     "extract, max_ate_m, max_sim3_ate_m",
     [
-        ("kitti_odometry/sequences/06", 0.035, 0.025),  # measured 0.0252, 0.0211
+        ("kitti_odometry/sequences/06", 0.035, 0.025),  # measured 0.0235, 0.0220
+        ("kitti_odometry/sequences/04", 0.05, 0.045),  # measured 0.0442, 0.0376 (0.168 before the prior)
         ("kitti_raw/2011_09_26/2011_09_26_drive_0005_sync", 0.095, 0.09),  # measured 0.0888, 0.0776
     ],
 )

@@ -13,7 +13,13 @@ from pld_slam.datasets.calibration import stereo_camera_from_projections
 from pld_slam.frontend.lines import detect_image_lines, match_stereo_lines
 from pld_slam.frontend.points import detect_image_points, stereo_match_indices
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.stereo_calibration import _anchored_pairs, calibrated_camera, estimate_disparity_offset, frame_gap
+from pld_slam.stereo_calibration import (
+    _anchored_pairs,
+    calibrated_camera,
+    estimate_disparity_offset,
+    frame_gap,
+    posterior_mean,
+)
 from pld_slam.synth import write_sequence
 
 N_FRAMES = 40
@@ -95,6 +101,25 @@ def test_the_offset_of_right_images_shifted_by_a_known_amount_is_found(street, s
     assert estimate.used == (shift_px != 0.0)
     if shift_px:
         assert estimate.offset_px == pytest.approx(shift_px, abs=0.15)
+
+
+def test_the_posterior_mean_shrinks_an_estimate_by_its_uncertainty_against_the_prior():
+    assert posterior_mean(-0.2, 0.05, 0.0) == -0.2  # no prior: as estimated
+    assert posterior_mean(-0.2, 0.15, 0.15) == pytest.approx(-0.1)  # as uncertain as the prior: halfway
+    assert posterior_mean(0.3, 0.05, 0.15) == pytest.approx(0.27)  # 0.15^2 / (0.15^2 + 0.05^2) = 0.9
+    assert 0.0 < posterior_mean(0.3, 10.0, 0.15) < 1e-3  # says nothing: stays at the prior's 0
+
+
+def test_with_a_prior_and_no_test_the_estimate_is_applied_shrunk(street):
+    # The street's rig is exact: its estimate (0.035 px, sigma about 0.03) fails the
+    # 2.5-deviation test, but with KITTI's family settings (a prior, no test) it is used,
+    # shrunk towards 0.
+    config = load_config(overrides=["calibration.min_significance=0", "calibration.prior_sigma_px=0.15"])
+    camera, estimate = calibrated_camera(street, config)
+    assert estimate.used
+    assert estimate.offset_px == pytest.approx(posterior_mean(estimate.estimate_px, estimate.sigma_px, 0.15))
+    assert 0.0 < estimate.offset_px / estimate.estimate_px < 1.0
+    assert camera.disparity_offset == pytest.approx(street.camera.disparity_offset + estimate.offset_px)
 
 
 def test_a_camera_that_never_moves_leaves_the_offset_alone(street):
