@@ -268,6 +268,15 @@ def test_sparse_jacobian_matches_central_differences_at_the_initial_point(small_
     assert_jacobian_matches(numeric, analytic)
 
 
+def test_the_start_jacobian_handed_to_the_solver_is_the_one_evaluated_afresh_there(small_street):
+    problem = perturbed_problem(small_street, SMALL_FIXED[1], seed=3)
+    solver_problem = sparse_problem(problem, some_rows(problem))
+    start = np.zeros(solver_problem.n_unknowns)
+    handed = solver_problem.jacobian(start).toarray()  # built with the problem, then dropped
+    np.testing.assert_array_equal(handed, solver_problem.jacobian(start).toarray())
+    assert np.count_nonzero(handed) > 0
+
+
 @pytest.mark.parametrize("row_subset", [all_rows, some_rows])
 @pytest.mark.parametrize("fixed", SMALL_FIXED, ids=["first-fixed", "second-and-fourth-fixed"])
 def test_sparse_jacobian_matches_central_differences_away_from_the_initial_point(small_street, fixed, row_subset):

@@ -13,7 +13,7 @@ from finite_differences import (
 )
 
 from pld_slam.geometry.se3 import inverse, transform_points
-from pld_slam.optim.point_reprojection import MIN_DEPTH, point_reprojection_error
+from pld_slam.optim.point_reprojection import MIN_DEPTH, point_reprojection_error, stereo_row_errors
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -84,3 +84,16 @@ def test_jacobians_behind_the_camera_are_those_of_the_clamped_projection():
     )
     assert_jacobian_matches(numeric_pose, error.jac_pose)
     assert_jacobian_matches(numeric_point, error.jac_point)
+
+
+def test_rows_without_jacobians_have_the_same_residuals_and_validity():
+    rng = np.random.default_rng(7)
+    T_c_w = random_pose(rng)
+    points_w = np.vstack([random_points_in_view(rng, T_c_w, 20), transform_points(inverse(T_c_w), [[0.0, 0.0, -1.0]])])
+    axes, offsets = rng.normal(size=(len(points_w), 3)), rng.normal(size=len(points_w))
+    full = stereo_row_errors(CAMERA, T_c_w, points_w, axes, offsets)
+    bare = stereo_row_errors(CAMERA, T_c_w, points_w, axes, offsets, with_jacobians=False)
+    np.testing.assert_array_equal(bare.residual, full.residual)
+    np.testing.assert_array_equal(bare.valid, full.valid)
+    assert not full.valid[-1]  # the point behind the camera
+    assert bare.jac_pose.shape == (0, 6) and bare.jac_point.shape == (0, 3)

@@ -33,9 +33,15 @@ the column norms as a fixed ``x_scale``, rather than as the matrix with ``x_scal
 (norms updated at every step): given a matrix, `least_squares` copies it at every
 evaluation, squares a copy for the norms and transposes another for LSMR. Global BA
 after 1,500 frames of the synthetic city (600 keyframes, 207,570 observations) peaked at
-774 MB over the map, now 580 MB, and took 1.9 instead of 2.4 s, with the same final
+774 MB over the map, then 580 MB, and took 1.9 instead of 2.4 s, with the same final
 cost, outliers and poses to 0.1 mm; at 4,541 frames the run's peak was 3.1 GB, most of
-it this solve.
+it this solve. Since then no evaluation of every row is held with its Jacobians: the
+chi-square tests and the solver's trial steps evaluate residuals only, the solve
+evaluates its own rows' Jacobians at its start, hands that matrix to the solver and drops
+the rows, and the CSR structure and column norms are filled by kernels without (R, 9)
+temporaries: the same solve peaks at 529 MB over the map resident (traced by Python: 523
+-> 426 MB), with the same evaluations and cost, and KITTI 06's trajectory is the same to
+the byte.
 
 Speed (issue 8). Measured on 12 local BA problems saved from a KITTI 06 run (4,700-7,200
 observations, ~21,700 rows), old and new code alternated on each, 7 times, median per
@@ -230,14 +236,14 @@ def bundle_adjust(
     """
     every_row = _BundleRows.of(problem, options)
     state = _State.initial(problem)
-    at_state = every_row.evaluate(camera, state, options.min_depth)
-    start_residual = at_state.residual  # kept without the start's Jacobians (memory: global BA of a long run)
+    at_state = every_row.evaluate(camera, state, options.min_depth, with_jacobians=False)
+    start_residual = at_state.residual
     include = every_row.usable(at_state)
     nfev = 0
     for robust in (True, False):
-        state, solve_nfev = _solve(camera, every_row, state, at_state, include, robust, options)
+        state, solve_nfev = _solve(camera, every_row, state, include, robust, options)
         nfev += solve_nfev
-        at_state = every_row.evaluate(camera, state, options.min_depth)
+        at_state = every_row.evaluate(camera, state, options.min_depth, with_jacobians=False)
         include = every_row.inliers(at_state, options) if robust else include
     inliers = every_row.inliers(at_state, options)
     used = every_row.row_mask(used_terms(inliers, every_row.horizontal_eligible, options))
@@ -330,13 +336,14 @@ class _BundleRows:
         flags[len(flags) - 2 * self.rows.n_horizontal :] = True
         return flags
 
-    def evaluate(self, camera: StereoCamera, state: _State, min_depth: float) -> RowEvaluation:
-        """Every row at ``state``."""
+    def evaluate(self, camera: StereoCamera, state: _State, min_depth: float,
+                 with_jacobians: bool = True) -> RowEvaluation:
+        """Every row at ``state`` (without Jacobians: residuals and validity only)."""
         n_point_rows = 3 * len(self.rows.points_w)
         world_points = state.world_points[self.row_world_point]
         rows = self.rows.with_landmarks(world_points[:n_point_rows:3], world_points[n_point_rows:])
         point_pose, line_pose = np.ascontiguousarray(self.row_pose[:n_point_rows:3]), self.row_pose[n_point_rows:]
-        return rows.evaluate(camera, state.T_c_w, state.T_c_w, min_depth, point_pose, line_pose)
+        return rows.evaluate(camera, state.T_c_w, state.T_c_w, min_depth, point_pose, line_pose, with_jacobians)
 
     def select(self, row_mask: np.ndarray) -> "_BundleRows":
         """The rows where ``row_mask`` (R,) is True (a term's rows all or none)."""
@@ -369,15 +376,13 @@ def _solve(
     camera: StereoCamera,
     every_row: _BundleRows,
     state: _State,
-    at_state: RowEvaluation,
     include: ObservationMasks,
     robust: bool,
     options: BundleOptions,
 ) -> tuple[_State, int]:
-    """One `least_squares` solve over the included rows from ``state``, where every row evaluates to
-    ``at_state``; the new state and its nfev."""
+    """One `least_squares` solve over the included rows from ``state``; the new state and its nfev."""
     used = every_row.row_mask(used_terms(include, every_row.horizontal_eligible, options))
-    problem = _SparseProblem(camera, every_row, state, used, at_state.select(used))
+    problem = _SparseProblem(camera, every_row, state, used)
     if problem.n_rows == 0:
         return state, 0
     loss = dict(loss=huber_without_curvature, f_scale=options.huber_scale) if robust else {}
@@ -388,7 +393,7 @@ def _solve(
         method="trf",
         tr_solver="lsmr",
         tr_options=dict(maxiter=options.lsmr_max_iterations),
-        x_scale=problem.column_scale(),
+        x_scale=problem.column_scale,
         max_nfev=options.max_nfev,
         ftol=options.ftol,
         **_STOPPING_TOLERANCES,
@@ -406,16 +411,8 @@ class _SparseProblem:
     block's columns multiplied by its ``W_b``: still analytic and as sparse.
     """
 
-    def __init__(
-        self,
-        camera: StereoCamera,
-        every_row: _BundleRows,
-        start: _State,
-        row_mask: np.ndarray,
-        at_start: RowEvaluation | None = None,
-    ) -> None:
-        """The rows of ``every_row`` where ``row_mask`` (R,), from ``start``; ``at_start``: their
-        evaluation there if the caller has it (`bundle_adjust` does, from its inlier tests)."""
+    def __init__(self, camera: StereoCamera, every_row: _BundleRows, start: _State, row_mask: np.ndarray) -> None:
+        """The rows of ``every_row`` where ``row_mask`` (R,), from ``start``."""
         self._camera = camera
         self._rows = every_row.select(row_mask)
         self._start = start
@@ -430,17 +427,13 @@ class _SparseProblem:
         self._row_free_pose = free_index[every_row.row_pose[row_mask]]
         """(R,) the free pose of each row (its index among the free poses), -1 for a fixed one."""
         self._row_world_point = every_row.row_world_point[row_mask]
-        row_free = self._row_free_pose >= 0
-        landmark_columns = self._n_pose_unknowns + 3 * self._row_world_point[:, None] + np.arange(3)
-        pose_columns = 6 * self._row_free_pose[:, None] + np.arange(6)
-        columns = np.concatenate([pose_columns, landmark_columns], axis=1)
-        entries = np.concatenate([np.repeat(row_free[:, None], 6, axis=1), np.ones((self.n_rows, 3), bool)], axis=1)
-        self._indices = columns[entries].astype(np.int32)
-        self._indptr = np.concatenate([[0], np.cumsum(entries.sum(axis=1))]).astype(np.int32)
+        self._indptr = np.empty(self.n_rows + 1, dtype=np.int32)
+        self._indices = np.empty(int(9 * self.n_rows - 6 * np.count_nonzero(self._row_free_pose < 0)), dtype=np.int32)
         """CSR structure in scipy's index type: given int64, every `csr_matrix` built from it
         checked and converted it (0.14 ms of the 0.16 ms construction at 21,000 rows)."""
-        if at_start is None:
-            at_start = self._rows.evaluate(camera, start, self._min_depth)
+        _fill_csr_structure(self._row_free_pose, self._row_world_point, self._n_pose_unknowns, self._indptr,
+                            self._indices)
+        at_start = self._rows.evaluate(camera, start, self._min_depth)
         rows_of_pose = [np.flatnonzero(self._row_free_pose == pose) for pose in range(n_free)]
         self._pose_whitening = _whitening(_pose_grams(at_start.jac_pose, rows_of_pose))
         pinned = np.zeros(len(start.world_points), dtype=bool)
@@ -449,21 +442,43 @@ class _SparseProblem:
             _block_grams(at_start.jac_landmark, self._row_world_point, len(start.world_points)),
             _held_directions(start, pinned),
         )
-        self._cached_y, self._cached = np.zeros(self.n_unknowns), at_start
+        self._cached_y, self._cached_residual = np.zeros(self.n_unknowns), at_start.residual
+        self._jacobian_at_start: csr_matrix | None = self._jacobian_of(at_start, np.zeros(self.n_unknowns))
+        """Handed to the solver's first Jacobian call and then dropped (memory: global BA)."""
+        del at_start  # its Jacobians are in the CSR matrix now
+        norms = np.sqrt(_column_square_sums(self._indices, self._jacobian_at_start.data, self.n_unknowns))
+        self.column_scale = 1.0 / np.where(norms > 0.0, norms, 1.0)
+        """The unknowns' scales (n_unknowns,) for ``x_scale``: the inverse column norms of the Jacobian at
+        the start (1 for a column without entries), as ``x_scale="jac"`` takes them at its first step."""
 
     def state(self, y: np.ndarray) -> _State:
         """Poses and landmarks at ``y``."""
         return self._state_at(self._x_of(y))
 
     def residuals(self, y: np.ndarray) -> np.ndarray:
-        """Whitened residuals (R,) at ``y``."""
-        return self._evaluate(y).residual
+        """Whitened residuals (R,) at ``y``, evaluated without Jacobians (the solver's trial steps
+        need none) and kept for a second call at the same ``y``."""
+        if not np.array_equal(y, self._cached_y):
+            evaluation = self._rows.evaluate(self._camera, self.state(y), self._min_depth, with_jacobians=False)
+            self._cached_y, self._cached_residual = np.array(y, dtype=np.float64), evaluation.residual
+        return self._cached_residual
 
     def jacobian(self, y: np.ndarray) -> csr_matrix:
-        """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y``: the rows' Jacobians times each
-        free pose's ``J_l(x_k) W_k`` and each world point's ``W_p``, filled into the CSR values by
-        `_fill_jacobian_values`."""
-        evaluation = self._evaluate(y)
+        """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y`` (`_jacobian_of`)."""
+        if self._jacobian_at_start is not None and not y.any():
+            jac, self._jacobian_at_start = self._jacobian_at_start, None
+            return jac
+        return self._jacobian_of(self._rows.evaluate(self._camera, self.state(y), self._min_depth), y)
+
+    def jacobian_operator(self, y: np.ndarray) -> LinearOperator:
+        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring)."""
+        jac = self.jacobian(y)
+        return LinearOperator(jac.shape, matvec=jac.dot, rmatvec=jac.T.dot, dtype=np.float64)
+
+    def _jacobian_of(self, evaluation: RowEvaluation, y: np.ndarray) -> csr_matrix:
+        """The Jacobian w.r.t. ``y`` of rows evaluated (with Jacobians) at ``y``: the rows' Jacobians
+        times each free pose's ``J_l(x_k) W_k`` and each world point's ``W_p``, filled into the CSR
+        values by `_fill_jacobian_values`."""
         twists = self._x_of(y)[: self._n_pose_unknowns].reshape(-1, 6)
         values = np.empty(len(self._indices))
         _fill_jacobian_values(
@@ -476,18 +491,6 @@ class _SparseProblem:
             values,
         )
         return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
-
-    def jacobian_operator(self, y: np.ndarray) -> LinearOperator:
-        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring)."""
-        jac = self.jacobian(y)
-        return LinearOperator(jac.shape, matvec=jac.dot, rmatvec=jac.T.dot, dtype=np.float64)
-
-    def column_scale(self) -> np.ndarray:
-        """The unknowns' scales (n_unknowns,) for ``x_scale``: the inverse column norms of the Jacobian at
-        the start (1 for a column without entries), as ``x_scale="jac"`` takes them at its first step."""
-        jac = self.jacobian(np.zeros(self.n_unknowns))
-        norms = np.sqrt(np.bincount(jac.indices, weights=np.square(jac.data), minlength=self.n_unknowns))
-        return 1.0 / np.where(norms > 0.0, norms, 1.0)
 
     def _x_of(self, y: np.ndarray) -> np.ndarray:
         """The unknowns ``x`` of the module docstring at ``y``."""
@@ -504,16 +507,6 @@ class _SparseProblem:
         points_w = self._start.points_w + shifts[:n_points]
         lines_w = self._start.lines_w + shifts[n_points:].reshape(-1, 2, 3)
         return _State(T_c_w, points_w, lines_w)
-
-    def _evaluate_x(self, x: np.ndarray) -> RowEvaluation:
-        return self._rows.evaluate(self._camera, self._state_at(x), self._min_depth)
-
-    def _evaluate(self, y: np.ndarray) -> RowEvaluation:
-        """The included rows at ``y``, computed once per ``y``."""
-        if not np.array_equal(y, self._cached_y):
-            self._cached = self._evaluate_x(self._x_of(y))
-            self._cached_y = np.array(y, dtype=np.float64)
-        return self._cached
 
 
 _WHITENING_FLOOR = 1e-4
@@ -555,6 +548,34 @@ def _fill_jacobian_values(jac_pose, jac_landmark, row_free_pose, pose_blocks, ro
                 value += jac_landmark[r, i] * whitening[i, j]
             values[entry] = value
             entry += 1
+
+
+@kernel
+def _fill_csr_structure(row_free_pose, row_world_point, n_pose_unknowns, indptr, indices):
+    """Fill the Jacobian's CSR row pointers (R + 1,) and column indices (nnz,): per row, the 6
+    columns of its free pose (none for a fixed pose, ``row_free_pose`` -1), then the 3 of its
+    world point (after the ``n_pose_unknowns`` pose columns); the order of `_fill_jacobian_values`."""
+    entry = 0
+    indptr[0] = 0
+    for r in range(len(row_free_pose)):
+        pose = row_free_pose[r]
+        if pose >= 0:
+            for j in range(6):
+                indices[entry] = 6 * pose + j
+                entry += 1
+        for j in range(3):
+            indices[entry] = n_pose_unknowns + 3 * row_world_point[r] + j
+            entry += 1
+        indptr[r + 1] = entry
+
+
+@kernel
+def _column_square_sums(indices, values, n_columns):
+    """The sum of squared values (n_columns,) of each column of a sparse matrix's entries (nnz,)."""
+    sums = np.zeros(n_columns)
+    for entry in range(len(indices)):
+        sums[indices[entry]] += values[entry] * values[entry]
+    return sums
 
 
 def _block_grams(jac: np.ndarray, block: np.ndarray, n_blocks: int) -> np.ndarray:

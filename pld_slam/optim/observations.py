@@ -175,7 +175,8 @@ class RowEvaluation(NamedTuple):
     residual : (K,) whitened residuals; jac_pose : (K, 6) their Jacobian w.r.t. the left
     perturbation ``delta`` of the row's pose; jac_landmark : (K, 3) w.r.t. the row's world
     point (a point, or the line endpoint the row measures); valid : (K,) bool, that point
-    lies deeper than ``min_depth``.
+    lies deeper than ``min_depth``. Evaluated without Jacobians (``with_jacobians=False``),
+    jac_pose and jac_landmark are (0, 6) and (0, 3), and `select` does not apply.
     """
 
     residual: np.ndarray
@@ -290,6 +291,7 @@ class WhitenedRows:
         min_depth: float,
         point_pose: np.ndarray | None = None,
         line_pose: np.ndarray | None = None,
+        with_jacobians: bool = True,
     ) -> RowEvaluation:
         """All rows at their poses: one ``T_c_w`` (4, 4) for all points / line rows, one per point
         (N, 4, 4) and per line row (4 Mv + 2 Mh, 4, 4), or K poses (K, 4, 4) with the pose of
@@ -311,6 +313,7 @@ class WhitenedRows:
             np.concatenate([point_offsets, self.line_rows.offsets]),
             min_depth,
             np.concatenate([np.repeat(point_index, 3), line_index + len(point_poses)]),
+            with_jacobians,
         )
         return RowEvaluation(rows.residual, rows.jac_pose, rows.jac_point, rows.valid)
 

@@ -134,6 +134,7 @@ def stereo_row_errors(
     offsets: np.ndarray,
     min_depth: float = MIN_DEPTH,
     pose_index: np.ndarray | None = None,
+    with_jacobians: bool = True,
 ) -> StereoRowErrors:
     """Rows ``axes . (u_left, v, u_right) + offsets`` (K,) of world points (K, 3), with Jacobians.
 
@@ -148,10 +149,13 @@ def stereo_row_errors(
     min_depth : a point at depth ``<= min_depth`` [m] is projected at that depth and flags
         its row not valid (module docstring).
     pose_index : (K,) the pose of each row in ``T_c_w`` (P, 4, 4), or None.
+    with_jacobians : False computes the residuals and validity only; the Jacobians are then
+        (0, 6) and (0, 3) (a solver's trial steps: no memory or time for Jacobians it may not use).
     """
     n = len(offsets)
     poses, pose_index = poses_and_index(T_c_w, n, pose_index)
-    errors = StereoRowErrors(np.empty(n), np.empty((n, 6)), np.empty((n, 3)), np.empty(n, dtype=bool))
+    n_jac = n if with_jacobians else 0
+    errors = StereoRowErrors(np.empty(n), np.empty((n_jac, 6)), np.empty((n_jac, 3)), np.empty(n, dtype=bool))
     _stereo_row_kernel(
         np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.bf]),
         poses,
@@ -160,6 +164,7 @@ def stereo_row_errors(
         np.ascontiguousarray(axes, dtype=np.float64),
         np.ascontiguousarray(offsets, dtype=np.float64),
         float(min_depth),
+        with_jacobians,
         errors.residual,
         errors.jac_pose,
         errors.jac_point,
@@ -170,9 +175,11 @@ def stereo_row_errors(
 
 @kernel
 def _stereo_row_kernel(
-    intrinsics, poses, pose_index, points_w, axes, offsets, min_depth, residual, jac_pose, jac_point, valid
+    intrinsics, poses, pose_index, points_w, axes, offsets, min_depth, with_jacobians, residual, jac_pose, jac_point,
+    valid
 ):
-    """Fill the outputs of `stereo_row_errors`: residual (K,), jac_pose (K, 6), jac_point (K, 3), valid (K,).
+    """Fill the outputs of `stereo_row_errors`: residual (K,), valid (K,) and, ``with_jacobians``,
+    jac_pose (K, 6) and jac_point (K, 3).
 
     Per row: ``p_c = R p_w + t``; depth clamped at ``min_depth``; ``u_left = fx x/z + cx``,
     ``v = fy y/z + cy``, ``u_right = u_left - bf/z``; the gradient ``g`` (3,) of the row
@@ -196,6 +203,9 @@ def _stereo_row_kernel(
         a_v, a_right = axes[i, 1], axes[i, 2]
         a_u = axes[i, 0] + a_right  # a . (u_left, v, u_right) = a_u u_left + a_v v - a_right bf / z
         residual[i] = a_u * (fx * x / depth + cx) + a_v * (fy * y / depth + cy) - a_right * bf / depth + offsets[i]
+        valid[i] = in_front
+        if not with_jacobians:
+            continue
         gx = a_u * fx * inv_z
         gy = a_v * fy * inv_z
         gz = (-(a_u * fx * x) - a_v * fy * y + a_right * bf) * depth_weight
@@ -207,7 +217,6 @@ def _stereo_row_kernel(
         jac_pose[i, 5] = x * gy - y * gx
         for j in range(3):
             jac_point[i, j] = gx * T[0, j] + gy * T[1, j] + gz * T[2, j]
-        valid[i] = in_front
 
 
 def project_stereo_with_jacobians(
