@@ -268,6 +268,17 @@ def test_sparse_jacobian_matches_central_differences_at_the_initial_point(small_
     assert_jacobian_matches(numeric, analytic)
 
 
+def test_a_jacobian_evaluated_in_chunks_of_rows_is_the_one_evaluated_at_once(small_street):
+    problem = perturbed_problem(small_street, SMALL_FIXED[1], seed=4)
+    every_row = bundle_adjustment._BundleRows.of(problem, BundleOptions())
+    state, rows = bundle_adjustment._State.initial(problem), some_rows(problem)
+    at_once = bundle_adjustment._SparseProblem(CAMERA, every_row, state, rows)
+    in_chunks = bundle_adjustment._SparseProblem(CAMERA, every_row, state, rows, chunk_rows=7)  # cuts terms apart
+    y = np.random.default_rng(5).normal(0.0, 2.0, at_once.n_unknowns)
+    assert at_once.n_rows > 10 * 7
+    np.testing.assert_array_equal(in_chunks.jacobian(y).toarray(), at_once.jacobian(y).toarray())
+
+
 def test_the_start_jacobian_handed_to_the_solver_is_the_one_evaluated_afresh_there(small_street):
     problem = perturbed_problem(small_street, SMALL_FIXED[1], seed=3)
     solver_problem = sparse_problem(problem, some_rows(problem))

@@ -36,12 +36,16 @@ after 1,500 frames of the synthetic city (600 keyframes, 207,570 observations) p
 774 MB over the map, then 580 MB, and took 1.9 instead of 2.4 s, with the same final
 cost, outliers and poses to 0.1 mm; at 4,541 frames the run's peak was 3.1 GB, most of
 it this solve. Since then no evaluation of every row is held with its Jacobians: the
-chi-square tests and the solver's trial steps evaluate residuals only, the solve
-evaluates its own rows' Jacobians at its start, hands that matrix to the solver and drops
-the rows, and the CSR structure and column norms are filled by kernels without (R, 9)
-temporaries: the same solve peaks at 529 MB over the map resident (traced by Python: 523
--> 426 MB), with the same evaluations and cost, and KITTI 06's trajectory is the same to
-the byte.
+chi-square tests and the solver's trial steps evaluate residuals only; a solve evaluates
+its rows' Jacobians at its start, hands that matrix to the solver and drops them, and
+later Jacobians are evaluated `JACOBIAN_CHUNK_ROWS` rows at a time; the rows are
+evaluated from their pose and world point indices and axes made once per problem
+(`_BundleRows`), a solve keeps the indices of its rows rather than copies of them, and
+the CSR structure and column norms are filled by kernels without (R, 9) temporaries.
+The same solve peaks at 432 MB over the map resident (597 before; traced by Python 523
+-> 376 MB), with the same evaluations and cost, and KITTI 06's trajectory is the same to
+the byte. What is left at the peak is the solver's: its Jacobian and the next one (scipy
+holds the first while the second is made), their column indices, its vectors.
 
 Speed (issue 8). Measured on 12 local BA problems saved from a KITTI 06 run (4,700-7,200
 observations, ~21,700 rows), old and new code alternated on each, 7 times, median per
@@ -50,8 +54,8 @@ and final cost, poses within 5e-12 m. From the profile (cProfile, 12 problems): 
 evaluations were 35 % of the time, the Jacobian's assembly 16 %, the solver's set-up
 13 %; now the rows are one numba kernel (`pld_slam.optim.point_reprojection`), the
 Jacobian's values are filled by `_fill_jacobian_values` into int32 CSR indices, and a
-solve starts from the evaluation of every row that `bundle_adjust` makes anyway for its
-tests (each round evaluated its start twice). What remains is `least_squares` itself:
+solve evaluates its rows with Jacobians once at its start for the whitening, the column
+scale and the solver's first Jacobian (each round evaluated its start twice). What remains is `least_squares` itself:
 LSMR's sparse products 31 %, the residuals 20 %, the Jacobian 11 %, the column norms of
 ``x_scale="jac"`` 9 % (now once per solve, above). With the unknowns block-whitened,
 ``x_scale=1.0`` needed the same nfev and moved poses by up to 11 mm (the stopping
@@ -73,7 +77,6 @@ are left out of a second, plain solve; every observation is then tested at the r
 and `BundleResult.inliers` tells the caller which to drop from the map.
 """
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,6 +97,7 @@ from pld_slam.optim.observations import (
     chi2_inliers,
     used_terms,
 )
+from pld_slam.optim.point_reprojection import stereo_row_errors
 from pld_slam.optim.robust import huber_without_curvature
 
 _LSMR_MAX_ITERATIONS = 10
@@ -282,13 +286,17 @@ class _BundleRows:
 
     Rows are those of `WhitenedRows` (3 per point observation, 2 per vertical term, 2 per
     horizontal term). ``row_pose`` (R,) is the pose of each row; ``row_world_point`` (R,)
-    the index of the world point it measures in `_State.world_points`; ``fixed_pose`` (K,)
-    the poses held fixed.
+    the index of the world point it measures in `_State.world_points`; ``row_axes`` (R, 3)
+    and ``row_offsets`` (R,) the rows as `stereo_row_errors` evaluates them
+    (`WhitenedRows.stacked_axes`, made once per problem); ``fixed_pose`` (K,) the poses held
+    fixed.
     """
 
     rows: WhitenedRows
     row_pose: np.ndarray
     row_world_point: np.ndarray
+    row_axes: np.ndarray
+    row_offsets: np.ndarray
     fixed_pose: np.ndarray
     horizontal_eligible: np.ndarray
     options: BundleOptions
@@ -314,8 +322,11 @@ class _BundleRows:
         )
         start_end = n_points + 2 * lines.line[:, None] + np.arange(2)  # (N, 2) world points of each line
         vertical_endpoint = np.tile(start_end, 2).ravel()  # left start, end, right start, end
+        row_axes, row_offsets = rows.stacked_axes()
         return cls(
             rows=rows,
+            row_axes=row_axes,
+            row_offsets=row_offsets,
             row_pose=np.concatenate(
                 [np.repeat(points.keyframe, 3), np.repeat(lines.keyframe, 4), np.repeat(lines.keyframe, 2)]
             ),
@@ -337,22 +348,13 @@ class _BundleRows:
         return flags
 
     def evaluate(self, camera: StereoCamera, state: _State, min_depth: float,
-                 with_jacobians: bool = True) -> RowEvaluation:
-        """Every row at ``state`` (without Jacobians: residuals and validity only)."""
-        n_point_rows = 3 * len(self.rows.points_w)
-        world_points = state.world_points[self.row_world_point]
-        rows = self.rows.with_landmarks(world_points[:n_point_rows:3], world_points[n_point_rows:])
-        point_pose, line_pose = np.ascontiguousarray(self.row_pose[:n_point_rows:3]), self.row_pose[n_point_rows:]
-        return rows.evaluate(camera, state.T_c_w, state.T_c_w, min_depth, point_pose, line_pose, with_jacobians)
-
-    def select(self, row_mask: np.ndarray) -> "_BundleRows":
-        """The rows where ``row_mask`` (R,) is True (a term's rows all or none)."""
-        return dataclasses.replace(
-            self,
-            rows=self.rows.select(row_mask),
-            row_pose=self.row_pose[row_mask],
-            row_world_point=self.row_world_point[row_mask],
-        )
+                 with_jacobians: bool = True, rows: slice = slice(None)) -> RowEvaluation:
+        """The rows ``rows`` (every row by default) at ``state``, without Jacobians residuals and
+        validity only: the rows of `WhitenedRows.evaluate`, each measuring its pose and world
+        point by index."""
+        errors = stereo_row_errors(camera, state.T_c_w, state.world_points, self.row_axes[rows], self.row_offsets[rows],
+                                   min_depth, self.row_pose[rows], with_jacobians, self.row_world_point[rows])
+        return RowEvaluation(errors.residual, errors.jac_pose, errors.jac_point, errors.valid)
 
     def usable(self, evaluation: RowEvaluation) -> ObservationMasks:
         """Every observation whose landmark projects (``lines``: the observation, whose vertical term
@@ -402,6 +404,10 @@ def _solve(
     return problem.state(solution.x), solution.nfev
 
 
+JACOBIAN_CHUNK_ROWS = 1 << 16
+"""Rows whose Jacobians `_SparseProblem.jacobian` holds at once: a local BA's rows in one go, a
+global BA's in pieces of 5 MB instead of all rows' (81 bytes each)."""
+
 class _SparseProblem:
     """The included rows of a problem as a function of block-whitened unknowns ``y``, with their sparse Jacobian.
 
@@ -411,10 +417,15 @@ class _SparseProblem:
     block's columns multiplied by its ``W_b``: still analytic and as sparse.
     """
 
-    def __init__(self, camera: StereoCamera, every_row: _BundleRows, start: _State, row_mask: np.ndarray) -> None:
-        """The rows of ``every_row`` where ``row_mask`` (R,), from ``start``."""
+    def __init__(self, camera: StereoCamera, every_row: _BundleRows, start: _State, row_mask: np.ndarray,
+                 chunk_rows: int = JACOBIAN_CHUNK_ROWS) -> None:
+        """The rows of ``every_row`` where ``row_mask`` (R,), from ``start``; `jacobian` evaluates
+        ``chunk_rows`` rows at a time."""
         self._camera = camera
-        self._rows = every_row.select(row_mask)
+        self._chunk_rows = chunk_rows
+        self._every_row = every_row
+        self._row_ids = np.flatnonzero(row_mask)
+        """(R,) the included rows of ``every_row``: indices, not copies of their data (memory: global BA)."""
         self._start = start
         self._min_depth = every_row.options.min_depth
         self._free = np.flatnonzero(~every_row.fixed_pose)
@@ -433,7 +444,7 @@ class _SparseProblem:
         checked and converted it (0.14 ms of the 0.16 ms construction at 21,000 rows)."""
         _fill_csr_structure(self._row_free_pose, self._row_world_point, self._n_pose_unknowns, self._indptr,
                             self._indices)
-        at_start = self._rows.evaluate(camera, start, self._min_depth)
+        at_start = every_row.evaluate(camera, start, self._min_depth, rows=self._row_ids)
         rows_of_pose = [np.flatnonzero(self._row_free_pose == pose) for pose in range(n_free)]
         self._pose_whitening = _whitening(_pose_grams(at_start.jac_pose, rows_of_pose))
         pinned = np.zeros(len(start.world_points), dtype=bool)
@@ -459,16 +470,33 @@ class _SparseProblem:
         """Whitened residuals (R,) at ``y``, evaluated without Jacobians (the solver's trial steps
         need none) and kept for a second call at the same ``y``."""
         if not np.array_equal(y, self._cached_y):
-            evaluation = self._rows.evaluate(self._camera, self.state(y), self._min_depth, with_jacobians=False)
-            self._cached_y, self._cached_residual = np.array(y, dtype=np.float64), evaluation.residual
+            state, residual = self.state(y), np.empty(self.n_rows)
+            for rows in self._chunks():
+                residual[rows] = self._evaluate(state, rows, with_jacobians=False).residual
+            self._cached_y, self._cached_residual = np.array(y, dtype=np.float64), residual
         return self._cached_residual
 
     def jacobian(self, y: np.ndarray) -> csr_matrix:
-        """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y`` (`_jacobian_of`)."""
+        """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y`` (`_jacobian_of`), its rows
+        evaluated `JACOBIAN_CHUNK_ROWS` at a time (memory: global BA)."""
         if self._jacobian_at_start is not None and not y.any():
             jac, self._jacobian_at_start = self._jacobian_at_start, None
             return jac
-        return self._jacobian_of(self._rows.evaluate(self._camera, self.state(y), self._min_depth), y)
+        state, pose_blocks = self.state(y), self._pose_blocks(y)
+        values = np.empty(len(self._indices))
+        for rows in self._chunks():
+            self._fill_values(self._evaluate(state, rows, with_jacobians=True), pose_blocks, rows,
+                              values[self._indptr[rows.start]:self._indptr[rows.stop]])
+        return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
+
+    def _chunks(self) -> list[slice]:
+        """The included rows in runs of ``chunk_rows`` (positions among them)."""
+        return [slice(start, min(start + self._chunk_rows, self.n_rows)) for start in range(0, self.n_rows,
+                                                                                             self._chunk_rows)]
+
+    def _evaluate(self, state: _State, rows: slice, with_jacobians: bool) -> RowEvaluation:
+        """The included rows at positions ``rows`` evaluated at ``state``."""
+        return self._every_row.evaluate(self._camera, state, self._min_depth, with_jacobians, self._row_ids[rows])
 
     def jacobian_operator(self, y: np.ndarray) -> LinearOperator:
         """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring)."""
@@ -476,21 +504,30 @@ class _SparseProblem:
         return LinearOperator(jac.shape, matvec=jac.dot, rmatvec=jac.T.dot, dtype=np.float64)
 
     def _jacobian_of(self, evaluation: RowEvaluation, y: np.ndarray) -> csr_matrix:
-        """The Jacobian w.r.t. ``y`` of rows evaluated (with Jacobians) at ``y``: the rows' Jacobians
-        times each free pose's ``J_l(x_k) W_k`` and each world point's ``W_p``, filled into the CSR
-        values by `_fill_jacobian_values`."""
-        twists = self._x_of(y)[: self._n_pose_unknowns].reshape(-1, 6)
+        """The Jacobian w.r.t. ``y`` of every row, evaluated (with Jacobians) at ``y`` (`_fill_values`)."""
         values = np.empty(len(self._indices))
+        self._fill_values(evaluation, self._pose_blocks(y), slice(0, self.n_rows), values)
+        return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
+
+    def _pose_blocks(self, y: np.ndarray) -> np.ndarray:
+        """``J_l(x_k) W_k`` (n_free, 6, 6) of each free pose at ``y``: a row's pose Jacobian times it is
+        its Jacobian w.r.t. the pose's whitened unknowns."""
+        return se3_left_jacobian(self._x_of(y)[: self._n_pose_unknowns].reshape(-1, 6)) @ self._pose_whitening
+
+    def _fill_values(self, evaluation: RowEvaluation, pose_blocks: np.ndarray, rows: slice,
+                     values: np.ndarray) -> None:
+        """Fill ``values``, the CSR values of the rows ``rows`` evaluated with Jacobians: the rows'
+        pose Jacobians times their pose's ``pose_blocks`` and landmark Jacobians times each world
+        point's ``W_p`` (`_fill_jacobian_values`)."""
         _fill_jacobian_values(
             evaluation.jac_pose,
             evaluation.jac_landmark,
-            self._row_free_pose,
-            se3_left_jacobian(twists) @ self._pose_whitening,
-            self._row_world_point,
+            self._row_free_pose[rows],
+            pose_blocks,
+            self._row_world_point[rows],
             self._point_whitening,
             values,
         )
-        return csr_matrix((values, self._indices, self._indptr), shape=(self.n_rows, self.n_unknowns))
 
     def _x_of(self, y: np.ndarray) -> np.ndarray:
         """The unknowns ``x`` of the module docstring at ``y``."""

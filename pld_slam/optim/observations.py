@@ -24,7 +24,6 @@ all residuals are in standard deviations. The paper leaves the covariances open.
   rows weigh nothing and the term has 2 dof instead of 4.
 """
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -278,11 +277,6 @@ class WhitenedRows:
         """(N,) bool, the points whose chi2 (N,) passes the bound of their dof (stereo 3, monocular 2)."""
         return point_chi2 <= np.where(self.point_is_stereo, chi2_stereo, chi2_monocular)
 
-    def with_landmarks(self, points_w: np.ndarray, line_endpoints_w: np.ndarray) -> "WhitenedRows":
-        """The same rows measuring other landmarks: points (N, 3) and one endpoint per line row (4 Mv + 2 Mh, 3)."""
-        line_rows = dataclasses.replace(self.line_rows, endpoints_w=line_endpoints_w)
-        return dataclasses.replace(self, points_w=points_w, line_rows=line_rows)
-
     def evaluate(
         self,
         camera: StereoCamera,
@@ -298,24 +292,31 @@ class WhitenedRows:
         each point ``point_pose`` (N,) and of each line row ``line_pose``.
 
         Point and line rows are evaluated together, in one call of
-        `pld_slam.optim.point_reprojection.stereo_row_errors` (`_point_rows` and
-        `LineErrorRows.stereo_axes` give their axes).
+        `pld_slam.optim.point_reprojection.stereo_row_errors` (`stacked_axes` gives their axes).
         """
         n_points, n_line_rows = len(self.points_w), len(self.line_rows.offsets)
         point_poses, point_index = poses_and_index(point_T_c_w, n_points, point_pose)
         line_poses, line_index = poses_and_index(line_T_c_w, n_line_rows, line_pose)
-        point_axes, point_offsets = self._point_rows()
+        axes, offsets = self.stacked_axes()
         rows = stereo_row_errors(
             camera,
             np.concatenate([point_poses, line_poses]),
             np.concatenate([np.repeat(self.points_w, 3, axis=0), self.line_rows.endpoints_w]),
-            np.concatenate([point_axes, self.line_rows.stereo_axes]),
-            np.concatenate([point_offsets, self.line_rows.offsets]),
+            axes,
+            offsets,
             min_depth,
             np.concatenate([np.repeat(point_index, 3), line_index + len(point_poses)]),
             with_jacobians,
         )
         return RowEvaluation(rows.residual, rows.jac_pose, rows.jac_point, rows.valid)
+
+    def stacked_axes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axes (R, 3) over ``(u_left, v, u_right)`` and offsets (R,) of every row, point rows first
+        (`_point_rows`), then line rows (`LineErrorRows.stereo_axes`): what
+        `pld_slam.optim.point_reprojection.stereo_row_errors` evaluates."""
+        point_axes, point_offsets = self._point_rows()
+        return (np.concatenate([point_axes, self.line_rows.stereo_axes]),
+                np.concatenate([point_offsets, self.line_rows.offsets]))
 
     def _point_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Axes (3 N, 3) over ``(u_left, v, u_right)`` and offsets (3 N,) of the whitened point rows:

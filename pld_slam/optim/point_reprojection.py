@@ -135,6 +135,7 @@ def stereo_row_errors(
     min_depth: float = MIN_DEPTH,
     pose_index: np.ndarray | None = None,
     with_jacobians: bool = True,
+    point_index: np.ndarray | None = None,
 ) -> StereoRowErrors:
     """Rows ``axes . (u_left, v, u_right) + offsets`` (K,) of world points (K, 3), with Jacobians.
 
@@ -143,7 +144,7 @@ def stereo_row_errors(
     camera : the rectified stereo camera.
     T_c_w : (4, 4) world-to-left-camera pose, one per row (K, 4, 4), or several (P, 4, 4)
         with ``pose_index`` (`poses_and_index`).
-    points_w : (K, 3) the world point of each row [m].
+    points_w : (K, 3) the world point of each row [m], or several (W, 3) with ``point_index``.
     axes : (K, 3) each row's weights of ``u_left``, ``v`` and ``u_right``.
     offsets : (K,) each row's constant.
     min_depth : a point at depth ``<= min_depth`` [m] is projected at that depth and flags
@@ -151,9 +152,12 @@ def stereo_row_errors(
     pose_index : (K,) the pose of each row in ``T_c_w`` (P, 4, 4), or None.
     with_jacobians : False computes the residuals and validity only; the Jacobians are then
         (0, 6) and (0, 3) (a solver's trial steps: no memory or time for Jacobians it may not use).
+    point_index : (K,) the world point of each row in ``points_w`` (W, 3), or None (bundle
+        adjustment: no (K, 3) copy of the points per evaluation).
     """
     n = len(offsets)
     poses, pose_index = poses_and_index(T_c_w, n, pose_index)
+    point_index = np.arange(n) if point_index is None else np.ascontiguousarray(point_index, dtype=np.int64)
     n_jac = n if with_jacobians else 0
     errors = StereoRowErrors(np.empty(n), np.empty((n_jac, 6)), np.empty((n_jac, 3)), np.empty(n, dtype=bool))
     _stereo_row_kernel(
@@ -161,6 +165,7 @@ def stereo_row_errors(
         poses,
         pose_index,
         np.ascontiguousarray(points_w, dtype=np.float64),
+        point_index,
         np.ascontiguousarray(axes, dtype=np.float64),
         np.ascontiguousarray(offsets, dtype=np.float64),
         float(min_depth),
@@ -175,8 +180,8 @@ def stereo_row_errors(
 
 @kernel
 def _stereo_row_kernel(
-    intrinsics, poses, pose_index, points_w, axes, offsets, min_depth, with_jacobians, residual, jac_pose, jac_point,
-    valid
+    intrinsics, poses, pose_index, points_w, point_index, axes, offsets, min_depth, with_jacobians, residual, jac_pose,
+    jac_point, valid
 ):
     """Fill the outputs of `stereo_row_errors`: residual (K,), valid (K,) and, ``with_jacobians``,
     jac_pose (K, 6) and jac_point (K, 3).
@@ -192,7 +197,8 @@ def _stereo_row_kernel(
     fx, fy, cx, cy, bf = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3], intrinsics[4]
     for i in range(len(offsets)):
         T = poses[pose_index[i]]
-        px, py, pz = points_w[i, 0], points_w[i, 1], points_w[i, 2]
+        point = points_w[point_index[i]]
+        px, py, pz = point[0], point[1], point[2]
         x = T[0, 0] * px + T[0, 1] * py + T[0, 2] * pz + T[0, 3]
         y = T[1, 0] * px + T[1, 1] * py + T[1, 2] * pz + T[1, 3]
         z = T[2, 0] * px + T[2, 1] * py + T[2, 2] * pz + T[2, 3]
