@@ -39,7 +39,7 @@ two keyframes on the test's 30-frame convoy, against 3; `tests/test_dynamic_scen
 Local mapping's fusion (`pld_slam.mapping.local_mapping`) searches the same way within the
 frame-to-frame bound and ratio, as ORB-SLAM2 fuses within a stricter bound than it tracks
 (50 bits): a fusion merges two landmarks for good. Lines: as frame-to-frame
-line matching (`pld_slam.tracking.matching.match_predicted_segments`), in a window of
+line matching (`pld_slam.matching.frames.match_predicted_segments`), in a window of
 ``mapping.line_search_radius_px`` around the predicted midpoint.
 
 Frame-to-frame points. The pose is solved over the map matches and, as ORB-SLAM2's stereo
@@ -90,15 +90,15 @@ from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.geometry.segments import segment_midpoints
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks, predicted_octaves
 from pld_slam.mapping.map import Map
-from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
-from pld_slam.tracking.matching import (
+from pld_slam.matching.frames import (
     MIN_SEARCH_DEPTH,
     FrameMatches,
     match_predicted_segments,
-    pairs_within,
     predict_segments,
     select_matches,
 )
+from pld_slam.matching.windows import pairs_within
+from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
 from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.static_world import static_world_solution
 

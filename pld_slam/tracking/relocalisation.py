@@ -34,7 +34,7 @@ from pld_slam.frontend.descriptors import CandidateMatches, unique_train
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.mapping.map import Map
-from pld_slam.tracking.matching import FrameMatches
+from pld_slam.matching.frames import FrameMatches
 
 RATIO = 0.8
 """Lowe's ratio test of matching without a prior (ORB-SLAM2's relocalisation: 0.75-0.8)."""
