@@ -148,12 +148,12 @@ from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.matching.frames import FrameMatches
+from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
 from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF
 from pld_slam.timing import StageClock
 from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
-from pld_slam.tracking.observations import line_observations, point_observations
 
 _SECOND_NEIGHBOURS = 5
 """Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""

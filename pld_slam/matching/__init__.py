@@ -6,5 +6,5 @@ binary descriptors' distances and best-match selection stay in the front end
 (`pld_slam.frontend.descriptors`), which its stereo matching needs and which sits below.
 
 `frames`: frame-to-frame matching guided by a predicted motion. `windows`: the window
-search every matcher runs.
+search every matcher runs. `observations`: matched features as pose-only observations.
 """

@@ -97,9 +97,9 @@ from pld_slam.matching.frames import (
     predict_segments,
     select_matches,
 )
+from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
-from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.static_world import static_world_solution
 
 MOVER_DEPTH_TOLERANCE = 0.2

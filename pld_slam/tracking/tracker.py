@@ -66,6 +66,7 @@ from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
+from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.pose_only import (
     PoseOnlyOptions,
@@ -83,7 +84,6 @@ from pld_slam.tracking.local_map import (
     track_local_map,
 )
 from pld_slam.tracking.moving_masks import features_on_mask
-from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
