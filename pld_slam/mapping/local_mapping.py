@@ -102,7 +102,7 @@ a method below:
    end of the run; a feature the frame has no match for yet is mapped as before.
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
    keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
-   theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`, within the
+   theirs into it, with the matcher of tracking (`pld_slam.matching.projection`, within the
    frame-to-frame descriptor bounds) and a chi-square test on the reprojection (the
    stereo point error, or the line vertical error in both images, as the solvers measure them);
    a match to a feature without a landmark adds an observation, a match to a feature with
@@ -149,11 +149,11 @@ from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.matching.frames import FrameMatches
 from pld_slam.matching.observations import line_observations, point_observations
+from pld_slam.matching.projection import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
 from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
 from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF
 from pld_slam.timing import StageClock
-from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
 
 _SECOND_NEIGHBOURS = 5
 """Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
@@ -350,7 +350,7 @@ class LocalMapping:
         another landmark fuses the two, the one with more observers kept
         (`pld_slam.mapping.map.Map.observe_or_fuse`). Loop closing fuses the two ends of a
         loop the same way. The landmarks are matched into all the keyframes at once
-        (`pld_slam.tracking.local_map.match_map_points_in_frames`), then the matches are
+        (`pld_slam.matching.projection.match_map_points_in_frames`), then the matches are
         applied keyframe by keyframe, in order; a landmark a fusion removed on the way keeps
         its matches in the later keyframes, which are then skipped (matched one keyframe at
         a time, it would no longer be searched, and a feature it took could go to another

@@ -5,6 +5,7 @@ ORB-SLAM2's ``ORBmatcher`` is; none of those stages imports another for its matc
 binary descriptors' distances and best-match selection stay in the front end
 (`pld_slam.frontend.descriptors`), which its stereo matching needs and which sits below.
 
-`frames`: frame-to-frame matching guided by a predicted motion. `windows`: the window
-search every matcher runs. `observations`: matched features as pose-only observations.
+`frames`: frame-to-frame matching guided by a predicted motion. `projection`: map
+landmarks searched by projection into frames. `windows`: the window search every matcher
+runs. `observations`: matched features as pose-only observations.
 """
