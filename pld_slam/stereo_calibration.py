@@ -129,9 +129,9 @@ from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.matching.observations import point_observations
+from pld_slam.matching.prior_free import MIN_PNP_INLIERS, match_without_prior, pnp_pose
 from pld_slam.optim.observations import PointObservations
 from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose, optimize_pose_rejecting_outliers
-from pld_slam.tracking.relocalisation import MIN_PNP_INLIERS, match_without_prior, pnp_pose
 
 PROFILE_STEP_PX = 0.05
 """Offset step [px] of the finite differences that give the profile's slope and curvature."""

@@ -67,6 +67,7 @@ from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
 from pld_slam.matching.observations import line_observations, point_observations
+from pld_slam.matching.prior_free import pose_without_prior
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.pose_only import (
     PoseOnlyOptions,
@@ -85,7 +86,7 @@ from pld_slam.tracking.local_map import (
 )
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
-from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
+from pld_slam.tracking.relocalisation import keyframes_by_similarity
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
 from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 
