@@ -3,7 +3,7 @@
 Tracking solves a frame's pose twice, against the reference frame's stereo features and
 against the local map's landmarks; both build their observations here, the 3D side
 expressed in the frame the solve estimates the pose from (reference camera or world).
-So do local mapping's fusion test (`pld_slam.mapping.local_mapping`) and the stereo calibration's
+So do fusion's reprojection test (`pld_slam.matching.fusion`) and the stereo calibration's
 frame-pair poses (`pld_slam.stereo_calibration`).
 """
 

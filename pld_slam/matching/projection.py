@@ -4,7 +4,7 @@ A snapshot of some landmarks (`LandmarkSnapshot`: copies of their map columns) i
 projected into frames at given poses and matched to their features. Called by tracking
 for its local map (`pld_slam.tracking.local_map`, which loop verification's geometric
 check also runs, `pld_slam.loop.verify`) and by fusion, which projects a keyframe's
-landmarks into all its neighbours at once (`pld_slam.mapping.local_mapping`, step 4).
+landmarks into all its neighbours at once (`pld_slam.matching.fusion`).
 
 Visibility. A landmark is searched for when it lies in front of the camera, projects
 inside the image, is seen within ``mapping.max_viewing_angle`` of its mean viewing
@@ -21,9 +21,11 @@ point is found again where its corner is detected, stereo-matched or not); for a
 keypoint, its right-image column must also lie within the window of the predicted one.
 Keypoints without a stereo match are monocular observations (`pld_slam.optim.observations`).
 The smallest Hamming distance under the caller's bound wins if it passes the caller's
-ratio test (tracking's bounds: `pld_slam.tracking.local_map`). Lines: as frame-to-frame
-line matching (`pld_slam.matching.frames.match_predicted_segments`), in a window of
-``mapping.line_search_radius_px`` around the predicted midpoint.
+ratio test (tracking's bounds: `pld_slam.tracking.local_map`; fusion's:
+`pld_slam.matching.fusion`).
+
+Lines: as frame-to-frame line matching (`pld_slam.matching.frames.match_predicted_segments`),
+in a window of ``mapping.line_search_radius_px`` around the predicted midpoint.
 """
 
 from collections.abc import Sequence

@@ -24,9 +24,7 @@ traffic 0.057 against 0.053 m, low texture 0.092 against 0.093 m. With 100 bits 
 0.9 ratio, ATE was lower still on the real extracts (0.023 and 0.086 m) but a convoy's
 points re-matched the landmarks made on it and kept them alive (10 landmarks older than
 two keyframes on the test's 30-frame convoy, against 3; `tests/test_dynamic_scenes.py`).
-Local mapping's fusion (`pld_slam.mapping.local_mapping`) searches the same way within the
-frame-to-frame bound and ratio, as ORB-SLAM2 fuses within a stricter bound than it tracks
-(50 bits): a fusion merges two landmarks for good.
+Fusion searches within the frame-to-frame bound and ratio (`pld_slam.matching.fusion`).
 
 Frame-to-frame points. The pose is solved over the map matches and, as ORB-SLAM2's stereo
 tracking does with its temporary "visual odometry" points, over the reference frame's
