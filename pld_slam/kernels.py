@@ -25,13 +25,13 @@ from pld_slam.frontend.points import sad_along_row
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.jit import compiled_kernels
+from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.bundle_adjustment import (
     BundleLineObservations,
     BundlePointObservations,
     BundleProblem,
     bundle_adjust,
 )
-from pld_slam.tracking.matching import pairs_within
 from pld_slam.tracking.see_through import shows_another_depth, shows_farther_surface
 
 _CAMERA = StereoCamera(fx=100.0, fy=100.0, cx=40.0, cy=30.0, baseline=0.5, width=80, height=60)

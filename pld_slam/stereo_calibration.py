@@ -128,10 +128,10 @@ from pld_slam.datasets.base import StereoSequence
 from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.matching.observations import point_observations
+from pld_slam.matching.prior_free import MIN_PNP_INLIERS, match_without_prior, pnp_pose
 from pld_slam.optim.observations import PointObservations
 from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose, optimize_pose_rejecting_outliers
-from pld_slam.tracking.observations import point_observations
-from pld_slam.tracking.relocalisation import MIN_PNP_INLIERS, match_without_prior, pnp_pose
 
 PROFILE_STEP_PX = 0.05
 """Offset step [px] of the finite differences that give the profile's slope and curvature."""
@@ -154,7 +154,7 @@ class PairMatches:
     uv_first : (K, 2) left pixels of the points in the first frame.
     disparity_first : (K,) their disparities [px] (the camera's offset already removed).
     stereo_px_second, sigma_second : (K, 3) their ``(u_left, v, u_right)`` [px] in the second
-        frame and the sigmas of those (`pld_slam.tracking.observations.point_observations`).
+        frame and the sigmas of those (`pld_slam.matching.observations.point_observations`).
     """
 
     uv_first: np.ndarray

@@ -195,7 +195,7 @@ class System:
         self.local_mapping = None if world_map is None else LocalMapping(world_map, self.camera, config)
         self.loop_closing = None
         if self.local_mapping is not None and config.loop.detector != "none":
-            self.loop_closing = LoopClosing(world_map, self.local_mapping, self.camera, config)
+            self.loop_closing = LoopClosing(world_map, self.camera, config)
         self.tracker = Tracker(self.camera, config, world_map)
         with_ggs = self.local_mapping is not None
         worker = background_worker(config.system.prefetch_worker, sequence.frames) if config.system.prefetch else None

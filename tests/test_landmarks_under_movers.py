@@ -6,13 +6,8 @@ import numpy as np
 from pld_slam.config import load_config
 from pld_slam.frontend import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.tracking.local_map import (
-    _NEAREST_SCALE,
-    MOVER_DEPTH_TOLERANCE,
-    LandmarkSnapshot,
-    missed_in_image,
-    missed_near_movers,
-)
+from pld_slam.matching.projection import _NEAREST_SCALE, LandmarkSnapshot
+from pld_slam.tracking.local_map import MOVER_DEPTH_TOLERANCE, missed_in_image, missed_near_movers
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 RADIUS_PX = 64.0

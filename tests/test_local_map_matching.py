@@ -1,4 +1,4 @@
-"""Matching map landmarks into several frames at once (`pld_slam.tracking.local_map`).
+"""Matching map landmarks into several frames at once (`pld_slam.matching.projection`).
 
 Local mapping's fusion projects a keyframe's landmarks into all its neighbours in one
 search (`match_map_points_in_frames`, `match_map_lines_in_frames`); each frame must get
@@ -14,14 +14,14 @@ from pld_slam.config import load_config
 from pld_slam.frontend import LeftKeypoints, StereoLines
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose, so3_exp, transform_points
-from pld_slam.tracking.local_map import (
+from pld_slam.matching.frames import predict_segments
+from pld_slam.matching.projection import (
     LandmarkSnapshot,
     match_map_lines,
     match_map_lines_in_frames,
     match_map_points,
     match_map_points_in_frames,
 )
-from pld_slam.tracking.matching import predict_segments
 
 CAMERA = StereoCamera(fx=300.0, fy=300.0, cx=320.0, cy=120.0, baseline=0.5, width=640, height=240)
 CONFIG = load_config()

@@ -3,7 +3,8 @@ keyframe culling; and the map invariants after a short synthetic run with mappin
 
 The keyframes see exact stereo features of a few world points and segments
 (`map_fixtures`), so fusion and local BA have nothing to correct; each test follows
-one step of `pld_slam.mapping.local_mapping`.
+one step of `pld_slam.mapping.local_mapping` (step 4's reprojection test:
+`pld_slam.matching.fusion`).
 """
 
 import dataclasses
@@ -28,6 +29,7 @@ from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
+from pld_slam.matching.fusion import line_reprojects
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 
@@ -224,8 +226,8 @@ def test_fusion_tests_a_line_in_both_images_as_the_solvers_measure_it():
     centre = inverse(keyframe.T_c_w)[:3, 3]
     farther = centre + 2.0 * (truth - centre)  # the same rays, twice as deep
     features = np.arange(N_LINES)
-    assert mapping._line_reprojects(keyframe, truth, features).all()
-    assert not mapping._line_reprojects(keyframe, farther, features).any()
+    assert line_reprojects(keyframe, truth, features, CAMERA, Config()).all()
+    assert not line_reprojects(keyframe, farther, features, CAMERA, Config()).any()
 
 
 def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_should_see_it_is_culled():

@@ -10,9 +10,9 @@ from map_fixtures import CAMERA, camera_at, make_keyframe, random_descriptors, s
 
 from pld_slam.config import Config
 from pld_slam.geometry.se3 import se3_exp, transform_points
+from pld_slam.loop import loop_closing
 from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.loop.verify import GeometricCheck, around, present_landmarks
-from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
 from pld_slam.tracking.local_map import local_map_of
 
@@ -39,14 +39,12 @@ def chain_map() -> Map:
     return world_map
 
 
-def close_loop(world_map: Map, correction: np.ndarray, matched: dict[int, int] | None = None,
-               local_mapping: LocalMapping | None = None) -> None:
+def close_loop(world_map: Map, correction: np.ndarray, matched: dict[int, int] | None = None) -> None:
     """Close the loop last keyframe -> keyframe 0, the geometric check placing the last keyframe at
     ``T_c_w @ correction`` ((4, 4)) against the candidate's local map (as `geometric_check` takes it)
     and matching its features to the loop side's points as ``matched`` (feature: point id; none by
     default)."""
-    local_mapping = local_mapping or LocalMapping(world_map, CAMERA, CONFIG)
-    loop_closing = LoopClosing(world_map, local_mapping, CAMERA, CONFIG)
+    closing = LoopClosing(world_map, CAMERA, CONFIG)
     current, candidate = world_map.keyframes[N_KEYFRAMES - 1], world_map.keyframes[0]
     point_ids = np.full(len(current.point_ids), -1)
     point_ids[list((matched or {}).keys())] = list((matched or {}).values())
@@ -54,7 +52,7 @@ def close_loop(world_map: Map, correction: np.ndarray, matched: dict[int, int] |
     local_map = local_map_of(world_map, around(world_map, candidate), present_landmarks(world_map, current))
     check = GeometricCheck(T_c_w=current.T_c_w @ correction, matches=50, inliers=50, tracking=found,
                            local_map=local_map)
-    loop_closing._close(current, candidate, check)
+    closing._close(current, candidate, check)
 
 
 def in_creator_frames(world_map: Map) -> np.ndarray:
@@ -88,14 +86,18 @@ def test_a_landmark_outside_the_moved_group_turns_its_viewing_direction_with_its
     np.testing.assert_allclose(directions_in_creators(), before, atol=1e-9)
 
 
-def test_the_loop_side_landmarks_the_current_side_did_not_observe_are_projected_into_the_moved_group():
+def test_the_loop_side_landmarks_the_current_side_did_not_observe_are_projected_into_the_moved_group(monkeypatch):
     """Fusing the check's inliers makes the current keyframe covisible with the candidate; the landmarks
     projected are still all of the check's local map (those of keyframes 0 and 1)."""
     world_map = chain_map()
-    local_mapping = LocalMapping(world_map, CAMERA, CONFIG)
     projected = []
-    local_mapping.fuse = lambda kind, keyframes, ids: projected.append((kind, [k.id for k in keyframes], ids)) or 0
-    close_loop(world_map, np.eye(4), matched={f: f for f in range(SHARED)}, local_mapping=local_mapping)
+
+    def recorded(fused_map, kind, keyframes, ids, camera, config):
+        projected.append((kind, [k.id for k in keyframes], ids))
+        return 0
+
+    monkeypatch.setattr(loop_closing, "fuse", recorded)
+    close_loop(world_map, np.eye(4), matched={f: f for f in range(SHARED)})
     points_call = next(call for call in projected if call[0] is world_map.points)
     assert points_call[1] == [N_KEYFRAMES - 1, N_KEYFRAMES - 2]
     np.testing.assert_array_equal(points_call[2], np.arange(3 * SHARED))  # keyframes 0 and 1 observe these

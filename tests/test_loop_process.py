@@ -66,7 +66,7 @@ def scripted(monkeypatch):
         world_map = Map(covisibility_min_shared=1)
         for k in range(CURRENT + 1):
             world_map.add_keyframe(make_keyframe(k, empty_features(), camera_at([0.05 * k, 0.0, 0.0])))
-        closing = LoopClosing(world_map, None, CAMERA, config)
+        closing = LoopClosing(world_map, CAMERA, config)
         return closing, closing.process(world_map.keyframes[CURRENT]), calls
 
     return build

@@ -1,4 +1,4 @@
-"""Frame-to-frame matching (`pld_slam.tracking.matching`) on hand-built stereo features.
+"""Frame-to-frame matching (`pld_slam.matching.frames`, `pld_slam.matching.windows`) on hand-built stereo features.
 
 The previous frame's features are random 3D points (and segments) with random 32-byte
 descriptors; the current frame sees the same structure moved by a known ``T_c_p``, with a
@@ -14,13 +14,13 @@ import pytest
 from pld_slam.frontend import StereoLines, StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose, so3_exp, transform_points
-from pld_slam.tracking.matching import (
+from pld_slam.matching.frames import (
     FrameMatches,
     match_lines,
     match_points,
-    pairs_within,
     predict_pixels,
 )
+from pld_slam.matching.windows import pairs_within
 
 CAMERA = StereoCamera(fx=192.0, fy=192.0, cx=160.0, cy=120.0, baseline=0.5, width=320, height=240)
 T_C_P = make_pose(so3_exp(np.array([0.01, 0.05, -0.02])), np.array([0.1, -0.03, -0.8]))

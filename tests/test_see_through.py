@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.tracking.local_map import LandmarkSnapshot, missed_in_image
+from pld_slam.matching.projection import LandmarkSnapshot
+from pld_slam.tracking.local_map import missed_in_image
 from pld_slam.tracking.see_through import (
     DEPTH_TOLERANCE,
     HALF_WINDOW,

@@ -25,7 +25,8 @@ step 5); then the loop is corrected:
 2. Fusion: each inlier of the check makes the current keyframe's feature observe the
    candidate's landmark (fused with the one it observed, if any), and the landmarks of the
    candidate's local map are projected into the moved keyframes and fused (ORB-SLAM2's
-   ``SearchAndFuse``). The two ends of the loop now share landmarks.
+   ``SearchAndFuse``; `pld_slam.matching.fusion`, as local mapping fuses). The two ends
+   of the loop now share landmarks.
 3. Pose graph (`pld_slam.loop.pose_graph`) over every keyframe: the essential graph as it
    was before the correction, measured with the poses before it, plus every loop edge
    closed so far.
@@ -73,8 +74,8 @@ from pld_slam.loop.verify import (
 from pld_slam.loop.vocabulary import Vocabulary
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
-from pld_slam.mapping.local_mapping import LocalMapping
 from pld_slam.mapping.map import Map
+from pld_slam.matching.fusion import fuse
 from pld_slam.optim.pose_only import PoseOnlyOptions
 
 
@@ -154,10 +155,9 @@ class _LoopEdge:
 class LoopClosing:
     """Loop detection and correction over the map (module docstring)."""
 
-    def __init__(self, world_map: Map, local_mapping: LocalMapping, camera: StereoCamera, config: Config) -> None:
+    def __init__(self, world_map: Map, camera: StereoCamera, config: Config) -> None:
         self.map = world_map
         self.detector = make_detector(world_map, config)
-        self._local_mapping = local_mapping
         self._camera = camera
         self._config = config
         self._pose_options = PoseOnlyOptions(
@@ -290,7 +290,8 @@ class LoopClosing:
             features = np.flatnonzero(loop_ids >= 0)
             fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
         for kind, ids in zip(self.map.kinds, (check.local_map.points.ids, check.local_map.lines.ids)):
-            fused += self._local_mapping.fuse(kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids)
+            fused += fuse(self.map, kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids,
+                          self._camera, self._config)
         for keyframe_id in group:
             self.map.attach_to_tree(self.map.keyframes[keyframe_id])
         return fused

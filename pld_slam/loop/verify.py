@@ -6,7 +6,7 @@ GGS) is accepted only when it passes every test here, cheapest first:
 
 1. Geometric check: the current keyframe's keypoints matched to the candidate's own map
    points by descriptor alone, seeded stereo PnP RANSAC on them
-   (`pld_slam.tracking.relocalisation`), then the map around the candidate (the
+   (`pld_slam.matching.prior_free`), then the map around the candidate (the
    candidate's and its covisible neighbours' landmarks) tracked from that pose with point
    and line errors (the pose-only solve of tracking). Landmarks the current keyframe and
    its own neighbours observe are left out of both: the loop's other end must be matched
@@ -74,6 +74,7 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, motion_size, se3_log, viewpoint_change
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
+from pld_slam.matching.prior_free import pose_without_prior
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.tracking.local_map import (
     LocalMap,
@@ -83,7 +84,6 @@ from pld_slam.tracking.local_map import (
     observed_landmarks,
     track_local_map,
 )
-from pld_slam.tracking.relocalisation import pose_without_prior
 from pld_slam.trajectory import polyline_length
 
 

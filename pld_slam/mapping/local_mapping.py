@@ -102,9 +102,8 @@ a method below:
    end of the run; a feature the frame has no match for yet is mapped as before.
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
    keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
-   theirs into it, with the matcher of tracking (`pld_slam.tracking.local_map`, within the
-   frame-to-frame descriptor bounds) and a chi-square test on the reprojection (the
-   stereo point error, or the line vertical error in both images, as the solvers measure them);
+   theirs into it, and fused (`pld_slam.matching.fusion`: the matcher of tracking within
+   the frame-to-frame descriptor bounds, and a chi-square test on the reprojection);
    a match to a feature without a landmark adds an observation, a match to a feature with
    another landmark fuses the two (the one with more observers stays).
 5. Local BA (`pld_slam.mapping.local_ba`), which drops the observations it finds outliers.
@@ -133,27 +132,20 @@ Tracking tells local mapping, frame by frame, which landmarks were visible, foun
 in view and seen moving (`record_tracking`): the counters of step 2.
 """
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pld_slam.config import Config
-from pld_slam.frontend import LeftKeypoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
+from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
-from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
-from pld_slam.optim.point_reprojection import MIN_DEPTH
-from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF
+from pld_slam.matching.fusion import fuse
 from pld_slam.timing import StageClock
-from pld_slam.tracking.local_map import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
-from pld_slam.tracking.matching import FrameMatches
-from pld_slam.tracking.observations import line_observations, point_observations
 
 _SECOND_NEIGHBOURS = 5
 """Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
@@ -325,8 +317,9 @@ class LocalMapping:
         changes = 0
         for kind in self.map.kinds:
             own = kind.live_ids(getattr(keyframe, kind.IDS_FIELD))
-            changes += self.fuse(kind, targets, own)
-            changes += self.fuse(kind, [keyframe], np.setdiff1d(kind.observed_by(targets), own))
+            changes += fuse(self.map, kind, targets, own, self._camera, self._config)
+            theirs = np.setdiff1d(kind.observed_by(targets), own)
+            changes += fuse(self.map, kind, [keyframe], theirs, self._camera, self._config)
             self._refresh(kind, kind.live_ids(getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
             self.map.attach_to_tree(touched)
@@ -342,76 +335,6 @@ class LocalMapping:
                 if second != keyframe.id and second not in chosen:
                     chosen.append(second)
         return [self.map.keyframes[k] for k in chosen]
-
-    def fuse(self, kind: Landmarks, keyframes: Sequence[KeyFrame], landmark_ids: np.ndarray) -> int:
-        """Project ``landmark_ids`` into each of ``keyframes`` and add or fuse what matches; returns the changes made.
-
-        A matched feature without a landmark observes the projected one; a feature with
-        another landmark fuses the two, the one with more observers kept
-        (`pld_slam.mapping.map.Map.observe_or_fuse`). Loop closing fuses the two ends of a
-        loop the same way. The landmarks are matched into all the keyframes at once
-        (`pld_slam.tracking.local_map.match_map_points_in_frames`), then the matches are
-        applied keyframe by keyframe, in order; a landmark a fusion removed on the way keeps
-        its matches in the later keyframes, which are then skipped (matched one keyframe at
-        a time, it would no longer be searched, and a feature it took could go to another
-        landmark). On KITTI 06 fusion took 23 against 29 ms per keyframe matched one keyframe at a
-        time, for the same trajectory (ATE 0.0305 m); on the synthetic sequences (150 frames, seeds
-        0-2) the mean ATE was 0.090 against 0.092 m (low texture), 0.032 against 0.033 m (static),
-        0.057 against 0.057 m (dynamic).
-        """
-        landmark_ids = landmark_ids[kind.alive[landmark_ids]]
-        if len(landmark_ids) == 0 or len(keyframes) == 0:
-            return 0
-        snapshot = LandmarkSnapshot.of(kind, landmark_ids)
-        poses = np.stack([keyframe.T_c_w for keyframe in keyframes])
-        features = [getattr(keyframe.features, kind.FEATURES_FIELD) for keyframe in keyframes]
-        if isinstance(kind, PointLandmarks):
-            found = match_map_points_in_frames(self._camera, poses, snapshot, features, self._config,
-                                               self._config.tracking.max_point_distance, self._config.tracking.ratio)
-        else:
-            found = match_map_lines_in_frames(self._camera, poses, snapshot, features, self._config)
-        matches = [each.matches for each in found]
-        changes = 0
-        fits_of = self._reprojects(kind, keyframes, poses, snapshot, matches)
-        for keyframe, matched, fits in zip(keyframes, matches, fits_of):
-            changes += self.map.observe_or_fuse(kind, keyframe, matched.current[fits],
-                                                snapshot.ids[matched.previous[fits]], keep_matched=False)
-        return changes
-
-    def _reprojects(
-        self, kind: Landmarks, keyframes: Sequence[KeyFrame], poses: np.ndarray, snapshot: LandmarkSnapshot,
-        matches: list[FrameMatches],
-    ) -> list[np.ndarray]:
-        """Per keyframe, whether each landmark of ``matches`` (snapshot rows to the keyframe's features)
-        reprojects onto its feature within the chi-square bound ((K,) bool per keyframe); ``poses``
-        (F, 4, 4) are the keyframes' ``T_c_w``.
-
-        Points are tested in all the keyframes at once, each observation at its keyframe's pose."""
-        counts = [len(matched) for matched in matches]
-        if isinstance(kind, PointLandmarks):
-            keypoints = [keyframe.features.keypoints for keyframe in keyframes]
-            sizes = np.array([len(frame) for frame in keypoints])
-            first_feature = np.cumsum(sizes) - sizes
-            features = np.concatenate([matched.current + first for matched, first in zip(matches, first_feature)])
-            geometry = snapshot.geometry[np.concatenate([matched.previous for matched in matches])]
-            observed = point_observations(geometry, LeftKeypoints.concatenate(keypoints), features, self._config.points)
-            rows = WhitenedRows.of(observed, LineObservations.empty(), LineObservations.empty())
-            pose_of_row = np.repeat(np.arange(len(keyframes)), counts)
-            evaluation = rows.evaluate(self._camera, poses, poses, MIN_DEPTH, pose_of_row, np.zeros(0, dtype=np.int64))
-            point_chi2, _, _ = rows.chi2(evaluation)
-            fits = rows.point_inliers(point_chi2, CHI2_95_3DOF, CHI2_95_2DOF)
-            return np.split(fits, np.cumsum(counts)[:-1])
-        return [self._line_reprojects(keyframe, snapshot.geometry[matched.previous], matched.current)
-                for keyframe, matched in zip(keyframes, matches)]
-
-    def _line_reprojects(self, keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray) -> np.ndarray:
-        """Whether each line (K, 2, 3) reprojects onto its matched line (K,) of ``keyframe`` within the
-        chi-square bound of its vertical error (left and right image, as the solvers measure it)."""
-        observed = line_observations(self._camera, geometry, keyframe.features.lines, features, self._config)
-        rows = WhitenedRows.of(PointObservations.empty(), observed, LineObservations.empty())
-        evaluation = rows.evaluate(self._camera, keyframe.T_c_w, keyframe.T_c_w, MIN_DEPTH)
-        _, vertical_chi2, _ = rows.chi2(evaluation)
-        return rows.line_inliers(vertical_chi2, CHI2_95_4DOF, CHI2_95_2DOF)
 
     def _cull_keyframes(self, keyframe: KeyFrame) -> tuple[int, ...]:
         """Step 6: remove covisible keyframes whose landmarks other keyframes see enough."""

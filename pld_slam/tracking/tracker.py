@@ -2,7 +2,7 @@
 
 The tracker owns a reference frame's stereo features and the constant-velocity motion
 model. For each new frame it predicts the pose from the last inter-frame motion, matches
-the reference features to the current ones around their predictions (`matching`),
+the reference features to the current ones around their predictions (`pld_slam.matching.frames`),
 removes mismatches with the paper's two filters (`outliers`), leaves out the features that
 disagree with the motion model (`dynamic`: dynamic grid and dynamic LLG), and estimates the pose
 relative to the reference by pose-only least squares over the point reprojection and line
@@ -65,6 +65,9 @@ from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelecto
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
+from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
+from pld_slam.matching.observations import line_observations, point_observations
+from pld_slam.matching.prior_free import pose_without_prior
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
 from pld_slam.optim.pose_only import (
     PoseOnlyOptions,
@@ -81,11 +84,9 @@ from pld_slam.tracking.local_map import (
     gather_local_map,
     track_local_map,
 )
-from pld_slam.tracking.matching import FrameMatches, match_lines, match_points, predict_segments
 from pld_slam.tracking.moving_masks import features_on_mask
-from pld_slam.tracking.observations import line_observations, point_observations
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
-from pld_slam.tracking.relocalisation import keyframes_by_similarity, pose_without_prior
+from pld_slam.tracking.relocalisation import keyframes_by_similarity
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
 from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 

@@ -3,6 +3,8 @@
 Tracking solves a frame's pose twice, against the reference frame's stereo features and
 against the local map's landmarks; both build their observations here, the 3D side
 expressed in the frame the solve estimates the pose from (reference camera or world).
+So do fusion's reprojection test (`pld_slam.matching.fusion`) and the stereo calibration's
+frame-pair poses (`pld_slam.stereo_calibration`).
 """
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""A frame's pose without a motion prior (`pld_slam.tracking.relocalisation`).
+"""A frame's pose without a motion prior (`pld_slam.matching.prior_free`).
 
 Map points with their own random descriptors seen exactly from a pose far from the
 identity: descriptor matching over the whole image and seeded PnP RANSAC must find that
@@ -10,7 +10,7 @@ from map_fixtures import CAMERA, random_descriptors, scene_points, world_feature
 
 from pld_slam.config import Config
 from pld_slam.geometry.se3 import se3_exp, se3_log, transform_points
-from pld_slam.tracking.relocalisation import MIN_PNP_INLIERS, match_without_prior, pose_without_prior
+from pld_slam.matching.prior_free import MIN_PNP_INLIERS, match_without_prior, pose_without_prior
 
 POINTS_W = scene_points(120, seed=21)
 DESCRIPTORS = random_descriptors(120, seed=22)
