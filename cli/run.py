@@ -9,6 +9,7 @@ from tqdm import tqdm
 from pld_slam.datasets import BagOptions, StereoFrame, StereoSequence, open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
+from pld_slam.io.map_ply import map_cloud
 from pld_slam.io.run_output import (
     DEFAULT_FORMATS,
     TRAJECTORY_PARTIAL,
@@ -203,8 +204,11 @@ def run_and_write(
     finally:
         partial.close()
         summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
+        world_map = system.result.map
         written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name, formats=formats, records=system.result.records)
+                                    title=sequence.name, formats=formats, records=system.result.records,
+                                    cloud=None if world_map is None else map_cloud(world_map),
+                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
         partial.discard()
     if interrupted is not None:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted

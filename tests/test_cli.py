@@ -335,7 +335,8 @@ def test_sigterm_mid_run_writes_the_trajectory_so_far_as_ctrl_c_does(tmp_path):
     assert child.returncode == EXIT_TERMINATED, stderr
     summary = json.loads((out / "summary.json").read_text())
     assert stderr == (f"terminated after {summary['frames']} of 30 frames; wrote trajectory.kitti.txt, "
-                      f"trajectory.tum.txt, summary.json, frames.csv, loops.csv, trajectory.png in {out}/\n")
+                      f"trajectory.tum.txt, summary.json, frames.csv, timing.png, loops.csv, trajectory.png, map.ply, "
+                      f"keyframes.tum.txt in {out}/\n")
     assert 4 <= len(read_tum(out / "trajectory.tum.txt")) == summary["frames"] < 30
     assert summary["stop_reason"] == "terminated"
     assert not (out / "trajectory.partial.tum.txt").exists()
@@ -427,7 +428,8 @@ def test_ctrl_c_mid_run_names_the_files_written_and_where(synthetic_sequence, tm
     result = run("run", synthetic_sequence, "--out", out)
     assert result.exit_code == EXIT_INTERRUPTED
     assert result.stderr == (f"interrupted after 3 of 6 frames; wrote trajectory.kitti.txt, trajectory.tum.txt, "
-                             f"summary.json, frames.csv, loops.csv, trajectory.png in {out}/\n")
+                             f"summary.json, frames.csv, timing.png, loops.csv, trajectory.png, map.ply, "
+                             f"keyframes.tum.txt in {out}/\n")
     assert len(read_kitti(out / "trajectory.kitti.txt")) == 3
 
 
@@ -500,7 +502,8 @@ def test_a_run_deletes_the_files_of_an_earlier_run_in_its_folder_but_no_other_fi
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 1)
     assert result.exit_code == 0, result.output
     assert sorted(path.name for path in out.iterdir()) == [
-        "frames.csv", "loops.csv", "notes.txt", "summary.json", "trajectory.kitti.txt", "trajectory.tum.txt"]
+        "frames.csv", "keyframes.tum.txt", "loops.csv", "map.ply", "notes.txt", "summary.json", "trajectory.kitti.txt",
+        "trajectory.tum.txt"]
 
 
 def test_demo_writes_under_runs_which_git_ignores_and_says_where(tmp_path, monkeypatch):

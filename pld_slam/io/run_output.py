@@ -1,5 +1,7 @@
 """The files of a run: trajectories (KITTI, TUM, EuRoC), summary.json, frames.csv (a row per
-frame), loops.csv and a trajectory plot, and the partial trajectory streamed while the run goes.
+frame), loops.csv, a trajectory plot and a plot of the cost per frame, the map (map.ply) and
+the keyframe trajectory (keyframes.tum.txt), and the partial trajectory streamed while the
+run goes.
 
 An output folder holds one run's files only: `prepare_output_folder` deletes the files
 an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
@@ -21,6 +23,8 @@ import pandas as pd
 
 from pld_slam.errors import OutputError
 from pld_slam.eval.plots import plot_trajectory_top_view
+from pld_slam.eval.timing_plot import plot_frame_times
+from pld_slam.io.map_ply import MapCloud, write_map_ply
 from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
 from pld_slam.system import STAGES, FrameRecord
@@ -38,7 +42,11 @@ SUMMARY = "summary.json"
 PLOT = "trajectory.png"
 LOOPS = "loops.csv"
 FRAMES = "frames.csv"
-RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS)
+TIMING_PLOT = "timing.png"
+MAP_PLY = "map.ply"
+KEYFRAMES_TUM = "keyframes.tum.txt"
+RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS, TIMING_PLOT, MAP_PLY,
+             KEYFRAMES_TUM)
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
 
 
@@ -124,27 +132,31 @@ def write_run_outputs(
     title: str,
     formats: tuple[str, ...] = DEFAULT_FORMATS,
     records: Sequence[FrameRecord] = (),
+    cloud: MapCloud | None = None,
+    keyframes: Trajectory | None = None,
 ) -> list[Path]:
     """Write the run's files into ``out_dir`` (created if needed); return their paths.
 
     The trajectory files, one per format of ``formats`` (named by `TRAJECTORY_FILES`),
     hold one row per processed frame (``T_w_c``, world = first camera). ``frames.csv``
-    has a row per frame of ``records`` (`frame_table`), written when there is one. ``loops.csv``
+    has a row per frame of ``records`` (`frame_table`), written when there is one, and
+    ``timing.png`` plots it (`pld_slam.eval.timing_plot`) from 2 frames on. ``loops.csv``
     lists the loop candidates of the summary's ``loop`` section, one row each (written
     when the run had a loop stage and a frame); the plot marks the closed loops and is
-    skipped for fewer than 2 frames. A file that cannot be written raises `OutputError`
-    naming it.
+    skipped for fewer than 2 frames. A run with a map writes ``map.ply`` (``cloud``,
+    `pld_slam.io.map_ply`) and ``keyframes.tum.txt`` (``keyframes``, when it has one). A
+    file that cannot be written raises `OutputError` naming it.
     """
     create_output_folder(out_dir)
     try:
-        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records)
+        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records, cloud, keyframes)
     except OSError as error:
         raise OutputError.from_os_error(out_dir, error) from None
 
 
 def _write_run_files(
     out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
-    formats: tuple[str, ...], records: Sequence[FrameRecord],
+    formats: tuple[str, ...], records: Sequence[FrameRecord], cloud: MapCloud | None, keyframes: Trajectory | None,
 ) -> list[Path]:
     """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
     written = []
@@ -155,8 +167,12 @@ def _write_run_files(
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     written.append(out_dir / SUMMARY)
     if records:
-        frame_table(records).to_csv(out_dir / FRAMES, index=False, float_format="%.3f")
+        table = frame_table(records)
+        table.to_csv(out_dir / FRAMES, index=False, float_format="%.3f")
         written.append(out_dir / FRAMES)
+        if len(table) >= 2:
+            plot_frame_times(out_dir / TIMING_PLOT, table, title=f"{title}: cost per frame")
+            written.append(out_dir / TIMING_PLOT)
     loop = summary.get("loop")
     if loop is not None and len(estimate) > 0:
         pd.DataFrame(loop["candidates"], columns=LOOP_COLUMNS).to_csv(out_dir / LOOPS, index=False)
@@ -164,6 +180,12 @@ def _write_run_files(
     if len(estimate) >= 2:
         plot_trajectory_top_view(out_dir / PLOT, groundtruth, estimate, title=title, loop_edges=closed_loop_times(loop))
         written.append(out_dir / PLOT)
+    if cloud is not None:
+        write_map_ply(out_dir / MAP_PLY, cloud)
+        written.append(out_dir / MAP_PLY)
+    if keyframes is not None and len(keyframes) > 0:
+        write_trajectory(out_dir / KEYFRAMES_TUM, keyframes, "tum")
+        written.append(out_dir / KEYFRAMES_TUM)
     return written
 
 

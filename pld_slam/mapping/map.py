@@ -27,6 +27,7 @@ from pld_slam.geometry.se3 import inverse
 from pld_slam.mapping.covisibility import CovisibilityGraph
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, LineLandmarks, PointLandmarks
+from pld_slam.trajectory import Trajectory
 
 
 class Map:
@@ -203,6 +204,12 @@ class Map:
         if keyframe.place_ggs is not None:
             self.ggs.remove(keyframe.id)
         del self.keyframes[keyframe.id]
+
+    def keyframe_trajectory(self) -> Trajectory:
+        """The poses ``T_w_c`` of the keyframes alive, by time (ORB-SLAM's ``KeyFrameTrajectory.txt``)."""
+        keyframes = sorted(self.keyframes.values(), key=lambda keyframe: keyframe.timestamp)
+        return Trajectory(np.array([keyframe.timestamp for keyframe in keyframes]),
+                          np.array([keyframe.T_w_c for keyframe in keyframes]).reshape(-1, 4, 4))
 
     def keyframe_T_w_c(self, keyframe_id: int) -> np.ndarray:
         """(4, 4) pose of a keyframe, live or culled (a culled one follows its parent chain).
