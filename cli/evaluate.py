@@ -8,6 +8,10 @@ import click
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import DatasetError, TrajectoryError
 from pld_slam.eval import EvalResult, evaluate, plot_error_over_time, plot_trajectory_top_view
+from pld_slam.eval.metrics import ate_result
+from pld_slam.eval.plots import comparison_error_figure, comparison_top_view_figure, save_figure
+from pld_slam.io.evo_results import write_evo_result
+from pld_slam.io.run_output import create_output_folder
 from pld_slam.io.trajectory import FORMATS, detect_format, is_euroc_body_groundtruth, read_trajectory
 from pld_slam.trajectory import Trajectory
 
@@ -58,19 +62,51 @@ def format_result_table(result: EvalResult, n_estimated: int) -> str:
 
     ``n_estimated`` is the number of poses in the estimate, for `coverage_note`.
     """
-    values = result.as_dict()
-    lines = []
-    for label, key, unit, fmt in _ROWS:
-        value = values[key]
-        if key == "sim3_scale":
-            text = scale_text(value, values["path_ratio"])
-        else:
-            text = "n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip()
-        lines.append(f"{label:<26}{text}")
+    lines = [f"{label:<26}{text}" for (label, *_), text in zip(_ROWS, metric_texts(result), strict=True)]
     coverage = coverage_note(result.n_matched, n_estimated)
     if coverage:
         lines.append(f"{'':<26}{coverage}")
     return "\n".join(lines)
+
+
+def metric_texts(result: EvalResult) -> list[str]:
+    """The value of each row of `_ROWS` as the tables print it."""
+    values = result.as_dict()
+    texts = []
+    for _, key, unit, fmt in _ROWS:
+        value = values[key]
+        if key == "sim3_scale":
+            texts.append(scale_text(value, values["path_ratio"]))
+        else:
+            texts.append("n/a (path < 100 m)" if value is None else f"{fmt.format(value)} {unit}".rstrip())
+    return texts
+
+
+def format_comparison_table(results: dict[str, EvalResult], n_estimated: dict[str, int]) -> str:
+    """The metrics of several estimates side by side, a column per estimate (its name on top),
+    and under the table each estimate's `coverage_note` where it has one."""
+    columns = {name: metric_texts(result) for name, result in results.items()}
+    widths = {name: max(len(name), *(len(text) for text in texts)) + 2 for name, texts in columns.items()}
+    lines = [f"{'':<26}" + "".join(f"{name:<{widths[name]}}" for name in columns)]
+    for row, (label, *_) in enumerate(_ROWS):
+        lines.append(f"{label:<26}" + "".join(f"{texts[row]:<{widths[name]}}" for name, texts in columns.items()))
+    for name, result in results.items():
+        coverage = coverage_note(result.n_matched, n_estimated[name])
+        if coverage:
+            lines.append(f"{name}: {coverage}")
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def estimate_names(paths: tuple[Path, ...]) -> dict[str, Path]:
+    """A name for each estimate file: its stem, or ``FOLDER_STEM`` where stems repeat (runs'
+    ``trajectory.tum.txt``), or its whole path where those repeat too."""
+    def unique(name_of) -> bool:
+        return len({name_of(path) for path in paths}) == len(paths)
+
+    for name_of in (lambda path: path.stem, lambda path: f"{path.parent.name}_{path.stem}", str):
+        if unique(name_of):
+            return {name_of(path): path for path in paths}
+    raise click.BadParameter("the same estimate file is given twice", param_hint="EST")
 
 
 def _stamp_by_frame(estimate: Trajectory, frame_times, est_path: Path) -> Trajectory:
@@ -115,7 +151,7 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
 
 @click.command("eval")
 @click.argument("gt", type=click.Path(exists=True, path_type=Path))
-@click.argument("est", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("est", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--format", "fmt", type=click.Choice(("auto",) + FORMATS), default="auto",
               show_default=True, help="Format of the trajectory files (auto: from their content).")
 @click.option("--align", type=click.Choice(("se3", "sim3", "none")), default="se3", show_default=True,
@@ -124,22 +160,70 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
               help="Largest timestamp difference [s] when pairing poses by time.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Also write trajectory_top_view.png and ate_over_time.png here.")
-def eval_command(gt: Path, est: Path, fmt: str, align: str, max_diff: float, as_json: bool,
-                 plot_dir: Path | None) -> None:
-    """Compare the estimated trajectory EST with the ground truth GT.
+              help="Also write trajectory_top_view.png and ate_over_time.png here (every EST on one plot).")
+@click.option("--save-results", "results_path", type=click.Path(path_type=Path),
+              help="Also write evo's result file of the ATE (a zip evo_res compares): this file for one EST, "
+                   "NAME.zip in this folder for several (NAME as in the table).")
+def eval_command(gt: Path, est: tuple[Path, ...], fmt: str, align: str, max_diff: float, as_json: bool,
+                 plot_dir: Path | None, results_path: Path | None) -> None:
+    """Compare the estimated trajectories EST (one or more) with the ground truth GT.
 
     GT is a trajectory file (KITTI, TUM or EuRoC) or a sequence folder whose ground truth
     pld-slam reads. Prints ATE RMSE (as --align, and after Sim(3)), the estimate's scale
     (Sim(3) scale and path-length ratio, estimate over ground truth: above 1 is too long),
-    RPE, and the KITTI devkit t_rel / r_rel (on paths of at least 100 m).
+    RPE, and the KITTI devkit t_rel / r_rel (on paths of at least 100 m); with several
+    EST, a column each, named by file (or folder and file where names repeat).
     """
-    groundtruth, estimate, by_index = load_pair(gt, est, fmt)
-    result = evaluate(groundtruth, estimate, align=align, by_index=by_index, max_diff=max_diff)
+    paths = estimate_names(est)
+    loaded = {name: load_pair(gt, path, fmt) for name, path in paths.items()}
+    results = {name: evaluated(paths[name], *pair, align, max_diff) for name, pair in loaded.items()}
     if plot_dir is not None:
-        plot_dir.mkdir(parents=True, exist_ok=True)
+        write_plots(plot_dir, loaded, align, max_diff)
+    if results_path is not None:
+        write_results(results_path, loaded, align, max_diff)
+    if len(results) == 1:
+        (name, result), = results.items()
+        click.echo(json.dumps(result.as_dict()) if as_json else format_result_table(result, len(loaded[name][1])))
+    elif as_json:
+        click.echo(json.dumps({name: result.as_dict() for name, result in results.items()}))
+    else:
+        click.echo(format_comparison_table(results, {name: len(pair[1]) for name, pair in loaded.items()}))
+
+
+def evaluated(path: Path, groundtruth: Trajectory, estimate: Trajectory, by_index: bool, align: str,
+              max_diff: float) -> EvalResult:
+    """`evaluate` of the estimate read from ``path``; a `TrajectoryError` names the file."""
+    try:
+        return evaluate(groundtruth, estimate, align=align, by_index=by_index, max_diff=max_diff)
+    except TrajectoryError as error:
+        raise TrajectoryError(f"{path}: {error}") from None
+
+
+def write_plots(plot_dir: Path, loaded: dict[str, tuple[Trajectory, Trajectory, bool]], align: str,
+                max_diff: float) -> None:
+    """trajectory_top_view.png and ate_over_time.png of every estimate in ``plot_dir`` (created):
+    one estimate as `plot_trajectory_top_view` draws it, several on one plot each."""
+    create_output_folder(plot_dir)
+    (name, (groundtruth, estimate, by_index)), *_ = loaded.items()
+    if len(loaded) == 1:
         plot_trajectory_top_view(plot_dir / "trajectory_top_view.png", groundtruth, estimate,
-                                 title=est.name, align=align, by_index=by_index, max_diff=max_diff)
+                                 title=name, align=align, by_index=by_index, max_diff=max_diff)
         plot_error_over_time(plot_dir / "ate_over_time.png", groundtruth, estimate,
                              align=align, by_index=by_index, max_diff=max_diff)
-    click.echo(json.dumps(result.as_dict()) if as_json else format_result_table(result, len(estimate)))
+        return
+    estimates = {name: estimate for name, (_, estimate, _) in loaded.items()}
+    save_figure(comparison_top_view_figure(groundtruth, estimates, align=align, by_index=by_index,
+                                           max_diff=max_diff), plot_dir / "trajectory_top_view.png")
+    save_figure(comparison_error_figure(groundtruth, estimates, align=align, by_index=by_index, max_diff=max_diff),
+                plot_dir / "ate_over_time.png")
+
+
+def write_results(path: Path, loaded: dict[str, tuple[Trajectory, Trajectory, bool]], align: str,
+                  max_diff: float) -> None:
+    """evo's result zip of each estimate's ATE: ``path`` itself for one estimate, ``path/NAME.zip``
+    for several (a name that is a whole path: its ``/`` as ``_``)."""
+    if len(loaded) > 1:
+        create_output_folder(path)
+    for name, (groundtruth, estimate, by_index) in loaded.items():
+        target = path if len(loaded) == 1 else path / f"{name.replace('/', '_')}.zip"
+        write_evo_result(target, ate_result(groundtruth, estimate, name, align, by_index, max_diff))

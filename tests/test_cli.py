@@ -16,6 +16,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 from conftest import REPO_ROOT, require
+from evo.tools import file_interface
 
 from pld_slam.datasets import open_sequence
 from pld_slam.geometry.se3 import make_pose
@@ -117,6 +118,50 @@ def test_eval_writes_plots(synthetic_sequence, tmp_path):
     assert result.exit_code == 0, result.output
     assert (tmp_path / "plots" / "trajectory_top_view.png").stat().st_size > 1000
     assert (tmp_path / "plots" / "ate_over_time.png").stat().st_size > 1000
+
+
+def drifting_estimates(synthetic_sequence, tmp_path) -> list:
+    """Two KITTI estimates of the synthetic sequence, both ``estimate.kitti.txt`` in folders a and b,
+    drifting sideways 0.05 and 0.1 m per frame."""
+    truth = read_kitti(synthetic_sequence / "poses.txt")
+    paths = []
+    for folder, drift in (("a", 0.05), ("b", 0.1)):
+        poses = truth.poses.copy()
+        poses[:, 0, 3] += drift * np.arange(len(truth))
+        (tmp_path / folder).mkdir()
+        write_kitti(tmp_path / folder / "estimate.kitti.txt", Trajectory(truth.timestamps, poses))
+        paths.append(tmp_path / folder / "estimate.kitti.txt")
+    return paths
+
+
+def test_eval_of_several_estimates_prints_a_column_each_and_writes_evo_results_evo_res_reads(
+        synthetic_sequence, tmp_path):
+    estimates = drifting_estimates(synthetic_sequence, tmp_path)
+    gt = synthetic_sequence / "poses.txt"
+    singles = [json.loads(run("eval", gt, path, "--json").output) for path in estimates]
+    table = run("eval", gt, *estimates, "--save-results", tmp_path / "results", "--plot", tmp_path / "plots")
+    assert table.exit_code == 0, table.output
+    header, ate = table.output.splitlines()[:2]
+    assert header.split() == ["a_estimate.kitti", "b_estimate.kitti"]  # same stems: named by folder
+    assert ate.split()[2::2] == [f"{single['ate_rmse_m']:.4f}" for single in singles]
+    both = json.loads(run("eval", gt, *estimates, "--json").output)
+    assert [both[name]["ate_rmse_m"] for name in ("a_estimate.kitti", "b_estimate.kitti")] == [
+        single["ate_rmse_m"] for single in singles]
+    for name, single in zip(("a_estimate.kitti", "b_estimate.kitti"), singles, strict=True):
+        saved = file_interface.load_res_file(tmp_path / "results" / f"{name}.zip")
+        assert saved.info["est_name"] == name
+        assert saved.stats["rmse"] == pytest.approx(single["ate_rmse_m"], rel=1e-12)
+        assert len(saved.np_arrays["error_array"]) == single["n_matched"]
+    assert (tmp_path / "plots" / "trajectory_top_view.png").stat().st_size > 1000
+
+
+def test_eval_of_one_estimate_saves_its_evo_result_as_the_file_given(synthetic_sequence, tmp_path):
+    estimate = drifting_estimates(synthetic_sequence, tmp_path)[1]
+    result = run("eval", synthetic_sequence / "poses.txt", estimate, "--save-results", tmp_path / "b.zip",
+                 "--align", "sim3")
+    assert result.exit_code == 0, result.output
+    saved = file_interface.load_res_file(tmp_path / "b.zip")
+    assert saved.info["alignment"] == "sim3" and saved.info["title"] == "ATE (sim3 alignment)"
 
 
 def test_kitti_and_tum_files_cannot_be_paired(tmp_path):

@@ -23,9 +23,11 @@ truth) is inverted for that.
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from evo import main_ape
 from evo.core.filters import FilterException
 from evo.core.geometry import GeometryException, umeyama_alignment
 from evo.core.metrics import APE, RPE, PoseRelation, StatisticsType, Unit
+from evo.core.result import Result
 from evo.core.sync import SyncException, associate_trajectories
 from evo.core.trajectory import PoseTrajectory3D
 
@@ -268,6 +270,27 @@ def _matched(
             f"(check the timestamps, max_diff = {max_diff} s, or match by index)"
         )
     return gt, est
+
+
+def ate_result(
+    groundtruth: Trajectory,
+    estimate: Trajectory,
+    name: str,
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> Result:
+    """The ATE of ``estimate`` (named ``name``) as evo's `Result`, what ``evo_res`` compares.
+
+    evo's APE of the position (``main_ape.ape``) between the matched poses, the estimate
+    aligned first as `evaluate` aligns it (``align``; `fit_alignment`), so the result's
+    RMSE is `evaluate`'s ``ate_rmse_m``; ``info["alignment"]`` says which alignment. The
+    title names the metric and alignment only: ``evo_res`` compares results of one title.
+    """
+    gt, est = _matched_and_aligned(groundtruth, estimate, align, by_index, max_diff)
+    result = main_ape.ape(_to_evo(gt), _to_evo(est), PoseRelation.translation_part)
+    result.info.update(est_name=name, ref_name="ground truth", alignment=align, title=f"ATE ({align} alignment)")
+    return result
 
 
 def _matched_and_aligned(

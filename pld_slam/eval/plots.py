@@ -6,6 +6,7 @@ needs a display and never touches the global pyplot state of the caller. Each pl
 ``plot_*`` function writing it as a PNG.
 """
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -83,9 +84,7 @@ def top_view_figure(
     if groundtruth is not None:
         title = f"{title}\n{ate_title_line(groundtruth, estimate, align, by_index, max_diff)}"
         estimate = aligned_onto(groundtruth, estimate, align, by_index, max_diff)
-        gt_xz = groundtruth.positions[:, [0, 2]]
-        axes.plot(gt_xz[:, 0], gt_xz[:, 1], "k--", linewidth=2.0, zorder=GROUND_TRUTH_ZORDER, label="ground truth")
-        start_xz = gt_xz[0]
+        start_xz = draw_groundtruth_top_view(axes, groundtruth)
         label = f"estimate ({ALIGNMENT_NAMES[align]})"
     est_xz = estimate.positions[:, [0, 2]]
     axes.plot(est_xz[:, 0], est_xz[:, 1], "b-", label=label)
@@ -95,6 +94,39 @@ def top_view_figure(
         axes.plot(est_xz[rows, 0], est_xz[rows, 1], "r-o", markersize=3, label="loop" if n == 0 else None)
     finish_top_view(axes, title)
     return figure
+
+
+def comparison_top_view_figure(
+    groundtruth: Trajectory,
+    estimates: Mapping[str, Trajectory],
+    title: str = "Trajectories, top view",
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> Figure:
+    """The x-z plane of several estimates over their ground truth (as ``evo_traj --ref``).
+
+    Each estimate (by name) is aligned onto the ground truth on its own, as its ATE is
+    (`aligned_onto`), and its legend entry gives that ATE; the ground truth is drawn as
+    in `top_view_figure`.
+    """
+    figure = Figure(figsize=FIGURE_SIZE_IN)
+    axes = figure.add_subplot()
+    start_xz = draw_groundtruth_top_view(axes, groundtruth)
+    for name, estimate in estimates.items():
+        aligned_xz = aligned_onto(groundtruth, estimate, align, by_index, max_diff).positions[:, [0, 2]]
+        axes.plot(aligned_xz[:, 0], aligned_xz[:, 1], "-",
+                  label=f"{name}: {ate_title_line(groundtruth, estimate, align, by_index, max_diff)}")
+    axes.plot(start_xz[0], start_xz[1], "go", zorder=GROUND_TRUTH_ZORDER + 1, label="start")
+    finish_top_view(axes, title)
+    return figure
+
+
+def draw_groundtruth_top_view(axes, groundtruth: Trajectory) -> np.ndarray:
+    """Draw the ground truth's x-z plane (black, dashed, on top) on ``axes``; its start (2,) [m]."""
+    gt_xz = groundtruth.positions[:, [0, 2]]
+    axes.plot(gt_xz[:, 0], gt_xz[:, 1], "k--", linewidth=2.0, zorder=GROUND_TRUTH_ZORDER, label="ground truth")
+    return gt_xz[0]
 
 
 def ate_title_line(groundtruth: Trajectory, estimate: Trajectory, align: str, by_index: bool, max_diff: float) -> str:
@@ -149,17 +181,31 @@ def error_over_time_figure(
     are plotted against their row in the estimate file, and the axis says so: the
     times such a file is read with are made up (0, 1, 2, ...) and are not seconds.
     """
-    timestamps, errors = ate_errors(groundtruth, estimate, align, by_index, max_diff)
+    return comparison_error_figure(groundtruth, {"": estimate}, title, align, by_index, max_diff)
+
+
+def comparison_error_figure(
+    groundtruth: Trajectory,
+    estimates: Mapping[str, Trajectory],
+    title: str = "Absolute trajectory error",
+    align: str = "se3",
+    by_index: bool = False,
+    max_diff: float = 0.01,
+) -> Figure:
+    """`error_over_time_figure` of several estimates on one axes, a line each, labelled by name
+    (no legend for a single unnamed estimate, ``""``)."""
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
-    if by_index:
-        axes.plot(np.arange(len(errors)), errors, "b-")
-        axes.set_xlabel("pose (row of the file)")
-    else:
-        axes.plot(timestamps - timestamps[0], errors, "b-")
-        axes.set_xlabel("time [s]")
+    style = "b-" if list(estimates) == [""] else "-"
+    for name, estimate in estimates.items():
+        timestamps, errors = ate_errors(groundtruth, estimate, align, by_index, max_diff)
+        x = np.arange(len(errors)) if by_index else timestamps - timestamps[0]
+        axes.plot(x, errors, style, label=name or None)
+    axes.set_xlabel("pose (row of the file)" if by_index else "time [s]")
     axes.set_ylabel(f"position error [m] ({ALIGNMENT_NAMES[align]})")
     axes.set_ylim(bottom=0.0)
     axes.set_title(title)
     axes.grid(True, alpha=0.3)
+    if style == "-":
+        axes.legend()
     return figure
