@@ -8,6 +8,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from pld_slam.io.run_output import RUN_FILES
+from pld_slam.synth import write_sequence
 from pld_slam_cli.main import cli
 
 README = (REPO_ROOT / "README.md").read_text()
@@ -96,3 +97,14 @@ def test_the_docs_point_inside_the_repository_and_architecture_has_the_conventio
         if "ARCHITECTURE.md" not in sentence:
             assert sentence in conventions
     assert "\n## One run\n" in ARCHITECTURE  # the flow of one run, through the module map
+
+
+def test_the_python_api_example_runs_and_prints_the_ate_and_the_map(tmp_path, monkeypatch, capsys):
+    example = section(README, "Python API").split("```python\n", 1)[1].split("```", 1)[0]
+    write_sequence(tmp_path / "runs" / "demo" / "sequence", "static", 12, (320, 240), seed=0)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(example, "README.md (Python API)", "exec"), {})
+    ate, counts = capsys.readouterr().out.splitlines()
+    assert re.fullmatch(r"ATE 0\.\d{3} m", ate) and float(ate.split()[1]) < 0.2
+    points, lines, keyframes = (int(word) for word in re.findall(r"\d+", counts))
+    assert points > 100 and lines > 10 and keyframes >= 2
