@@ -26,19 +26,11 @@ from pld_slam.errors import ConfigError, PldSlamError, Terminated
 from pld_slam.eval import evaluate
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
-from pld_slam.io.run_output import (
-    FRAMES,
-    LOOP_COLUMNS,
-    LOOPS,
-    PLOT,
-    SUMMARY,
-    TRAJECTORY_KITTI,
-    TRAJECTORY_TUM,
-    write_run_outputs,
-)
+from pld_slam.io.run_output import FRAMES, LOOPS, PLOT, SUMMARY, TRAJECTORY_KITTI, TRAJECTORY_TUM
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.loop.vocabulary import build_vocabulary
 from pld_slam.loop.vocabulary_training import training_descriptors
+from pld_slam.report.run_files import LOOP_COLUMNS, write_run_outputs
 from pld_slam.synth import write_sequence
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackingStatus
