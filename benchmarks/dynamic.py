@@ -45,6 +45,7 @@ import pandas as pd
 from extracts import existing_extracts
 
 from pld_slam.datasets import StereoSequence, open_sequence
+from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.mover_landmarks import GROUPS, MoverLandmarks
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.run_config import load_run_config
@@ -65,11 +66,13 @@ KEYFRAMES_AFTER_START = 5
 
 
 def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
-    """Summary of one run (the sequence's family config) with the detectors switched by ``overrides``."""
+    """Summary of one run (the sequence's family config) with the detectors switched by ``overrides``;
+    the labels scored against the sequence's masks where it has them."""
     run_config = load_run_config(sequence, overrides=overrides)
-    system = System(sequence, run_config.config)
+    scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
+    system = System(sequence, run_config.config, [] if scores is None else [scores])
     system.run()
-    return summarise_run(sequence, system.result, run_config.config, run_config.sources)
+    return summarise_run(sequence, system.result, run_config.config, run_config.sources, scores)
 
 
 def label_count_columns(dynamic: dict) -> dict:

@@ -11,9 +11,10 @@ import click
 
 from pld_slam.datasets import open_sequence
 from pld_slam.io.run_output import create_output_folder
+from pld_slam.report.run_files import run_and_write
 from pld_slam.synth import CAMERAS, SCENARIOS, write_sequence
 from pld_slam_cli.config import set_option
-from pld_slam_cli.run import format_run_table, run_and_write
+from pld_slam_cli.run import format_run_table
 
 DEMO_FOLDER = Path("runs") / "demo"
 

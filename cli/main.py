@@ -3,17 +3,18 @@
 A `PldSlamError` (bad folder, malformed file, invalid config) reaches the user as one line
 ``error: ...`` on stderr and exit code 2. Any other exception is a bug: one line asking
 for ``--verbose`` and exit code 1. Ctrl-C prints ``interrupted`` (with what a run wrote
-and where, `pld_slam_cli.run.RunInterrupted`) and exits with 130. ``--verbose`` prints
+and where, `pld_slam.report.run_files.RunInterrupted`) and exits with 130. ``--verbose`` prints
 the traceback before that line and changes nothing else, the exit code included.
 
 SIGTERM (``kill``, a batch scheduler's time limit, a container stopping) stops a command
-the way Ctrl-C does, so that a run still writes what it has: the handler raises
-`pld_slam.errors.Terminated` (a `KeyboardInterrupt`); the line and ``summary.json``'s
-``stop_reason`` say ``terminated``, and the exit code is 143 (128 + 15, what a shell
-reports for a process ended by SIGTERM). Without it SIGTERM ends the process at
-once and a run leaves only its partial trajectory file. It also reaches a process whose
-SIGINT is ignored (started in the background by a shell or ``nohup``), so it is how
-`pld_slam.report.cells` stops a cell at its time limit.
+the way Ctrl-C does, so that a run still writes what it has: the handler
+(`pld_slam.errors.stop_on_sigterm`) raises `pld_slam.errors.Terminated` (a
+`KeyboardInterrupt`); the line and ``summary.json``'s ``stop_reason`` say ``terminated``,
+and the exit code is 143 (128 + 15, what a shell reports for a process ended by SIGTERM).
+Without it SIGTERM ends the process at once and a run leaves only its partial trajectory
+file. It also reaches a process whose SIGINT is ignored (started in the background by a
+shell or ``nohup``), so it is how `pld_slam.report.cells` stops a cell at its time limit
+(the cell's run, `pld_slam.report.cell_run`, has the same handler).
 
 The commands are imported when one is invoked, not with this module: their imports
 (OpenCV, numba, evo, matplotlib) take seconds, and a Ctrl-C during them would otherwise
@@ -28,7 +29,7 @@ import traceback
 import click
 
 from pld_slam import __version__
-from pld_slam.errors import PldSlamError, Terminated
+from pld_slam.errors import PldSlamError, Terminated, stop_on_sigterm
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
@@ -94,12 +95,7 @@ def cli(ctx: click.Context, verbose: bool) -> None:
     ctx.ensure_object(dict)["verbose"] = verbose
 
 
-def _stop_on_sigterm(signum: int, frame) -> None:
-    """SIGTERM handler: stop as Ctrl-C does (module docstring)."""
-    raise Terminated
-
-
 def main() -> None:
     """Console-script entry point."""
-    signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    signal.signal(signal.SIGTERM, stop_on_sigterm)
     sys.exit(cli(prog_name="pld-slam"))

@@ -4,24 +4,12 @@ import json
 from pathlib import Path
 
 import click
-from tqdm import tqdm
 
-from pld_slam.datasets import BagOptions, StereoFrame, StereoSequence, open_sequence
-from pld_slam.eval.run_summary import summarise_run
-from pld_slam.io.dynamic_overlays import write_dynamic_overlay
-from pld_slam.io.map_ply import map_cloud
-from pld_slam.io.run_output import (
-    DEFAULT_FORMATS,
-    TRAJECTORY_PARTIAL,
-    PartialTrajectory,
-    create_output_folder,
-    prepare_output_folder,
-    write_run_outputs,
-)
+from pld_slam.datasets import BagOptions, open_sequence
+from pld_slam.io.run_output import DEFAULT_FORMATS
 from pld_slam.io.trajectory import FORMATS
-from pld_slam.run_config import load_run_config
-from pld_slam.system import STAGES, System
-from pld_slam.tracking.tracker import TrackedFrame
+from pld_slam.report.run_files import run_and_write
+from pld_slam.system import STAGES
 from pld_slam_cli.config import config_files_option, set_option
 from pld_slam_cli.evaluate import SCALE_LABEL, coverage_note, scale_text
 
@@ -31,11 +19,6 @@ LABEL_WIDTH = 31
 """Characters of the run table's label column: the longest label, ``see_through ms/frame (median)``, and two."""
 SKIPPED_FRAMES_SHOWN = 3
 """How many skipped frames the run table names; summary.json lists them all."""
-
-
-class RunInterrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM stopped a run after its files were written; the message says how far it got and what
-    it wrote."""
 
 
 def skipped_frame_rows(skipped: list[dict]) -> list[tuple[str, str]]:
@@ -135,22 +118,6 @@ def disparity_offset_rows(estimate: dict | None) -> list[tuple[str, str]]:
     return [("disparity offset", f"not changed: {estimate['reason']} ({basis})")]
 
 
-def overlay_writer(folder: Path, sequence: StereoSequence):
-    """A `System` observer writing each frame's dynamic-label overlay as ``folder/NNNNNN.png``.
-
-    The folder is created here, before the first frame, so that one that cannot be
-    created stops the run (`OutputError`) before any work is done.
-    """
-    create_output_folder(folder)
-
-    def write(frame: StereoFrame, tracked: TrackedFrame) -> None:
-        if tracked.dynamic is not None:
-            path = folder / f"{frame.index:06d}.png"
-            write_dynamic_overlay(path, frame.left, tracked.dynamic, sequence.dynamic_mask(frame.index))
-
-    return write
-
-
 def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tuple[str, ...]:
     """``--formats``: comma-separated names of `FORMATS`, in the order given, repeats dropped."""
     names = tuple(dict.fromkeys(name.strip() for name in value.split(",") if name.strip()))
@@ -158,67 +125,6 @@ def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tup
     if unknown or not names:
         raise click.BadParameter(f"{value!r}: expected one or more of {','.join(FORMATS)}, separated by commas")
     return names
-
-
-def run_and_write(
-    sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
-    save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
-) -> dict:
-    """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
-
-    The configuration is `load_run_config`'s: defaults, the dataset family's file, then
-    ``config_paths`` and ``overrides``; its ``dataset.scale`` scales the sequence
-    (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats.
-
-    The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
-    so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
-    `PartialTrajectory`) after the input and config are checked and before the first
-    frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
-    after every frame is lost. Each frame's tracked pose is appended to that file as
-    the run goes, so a run killed hard keeps its poses so far; the file is deleted once
-    the final trajectory files are written. Ctrl-C during the frames raises
-    `RunInterrupted` once the files are written, naming them (`interrupted_message`).
-    """
-    run_config = load_run_config(sequence, config_paths, overrides)
-    sequence = sequence.scaled(run_config.config.dataset.scale)
-    observer = None if save_dynamic is None else overlay_writer(save_dynamic, sequence)
-    partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
-    system = System(sequence, run_config.config, observer,
-                    record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
-    try:
-        prepare_output_folder(out)
-        partial.start()
-    except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
-        system.close()
-        raise
-    n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
-
-    def progress(indices):
-        return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
-
-    interrupted = None
-    try:
-        system.run(max_frames=max_frames, progress=progress)
-    except KeyboardInterrupt as interrupt:
-        interrupted = interrupt  # raised again below, once the files are written
-    finally:
-        partial.close()
-        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources)
-        world_map = system.result.map
-        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name, formats=formats, records=system.result.records,
-                                    cloud=None if world_map is None else map_cloud(world_map),
-                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
-        partial.discard()
-    if interrupted is not None:
-        raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
-    return summary
-
-
-def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[Path]) -> str:
-    """How far an interrupted run got and which files it wrote where: ``after 5 of 12 frames; wrote ... in OUT/``."""
-    names = ", ".join(path.name for path in written)
-    return f"after {summary['frames']} of {n_frames} frames; wrote {names} in {out}/"
 
 
 @click.command("run")

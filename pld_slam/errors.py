@@ -7,8 +7,14 @@ prints that line and exits with code 2.
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised by the ``pld-slam`` command's handler: a run stops as on Ctrl-C
-    (`KeyboardInterrupt`) and its summary says ``terminated``."""
+    """SIGTERM, raised by `stop_on_sigterm` (the handler of the ``pld-slam`` command and of an
+    ablation cell's run): a run stops as on Ctrl-C (`KeyboardInterrupt`) and its summary says
+    ``terminated``."""
+
+
+def stop_on_sigterm(signum: int, frame) -> None:
+    """A SIGTERM handler (``signal.signal(signal.SIGTERM, stop_on_sigterm)``): raise `Terminated`."""
+    raise Terminated
 
 
 class PldSlamError(Exception):

@@ -39,7 +39,7 @@ that rows stay aligned with frames.
 """
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -48,7 +48,6 @@ from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence
 from pld_slam.errors import ConfigError, Terminated
-from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.se3 import inverse
@@ -62,8 +61,6 @@ from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.stereo_calibration import DisparityOffsetEstimate, calibrated_camera
 from pld_slam.timing import ms_since, resident_mb
-from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame, Tracker, TrackingCounts, TrackingStatus
 from pld_slam.trajectory import Trajectory
 
@@ -94,8 +91,6 @@ class FrameRecord:
     stage_ms : wall time per stage [ms] (keys from `STAGES`).
     n_points, n_lines : stereo points and lines the front end found.
     skipped_reason : why the frame's images could not be used, or None.
-    dynamic_points, dynamic_lines : label counts of the matched points and lines against
-        the sequence's moving-object masks (synthetic sequences), or None without masks.
     map_size : keyframes, point landmarks and line landmarks alive once the frame was
         mapped ((0, 0, 0) without a map).
     rss_mb : the main process's resident memory then [MiB] (`pld_slam.timing.resident_mb`).
@@ -110,8 +105,6 @@ class FrameRecord:
     n_points: int = 0
     n_lines: int = 0
     skipped_reason: str | None = None
-    dynamic_points: LabelCounts | None = None
-    dynamic_lines: LabelCounts | None = None
     reference_keyframe: int | None = None
     T_c_r: np.ndarray | None = None
     keyframe: KeyframeReason | None = None
@@ -159,7 +152,8 @@ class RunResult:
 
 
 FrameObserver = Callable[[StereoFrame, TrackedFrame], None]
-"""Called with each frame that had images and what tracking made of it (e.g. to draw overlays)."""
+"""Called with each frame that had images and what tracking made of it (e.g. to draw overlays, or
+to score the dynamic labels against ground-truth masks, `pld_slam.eval.dynamic_labels.MaskScores`)."""
 
 RecordObserver = Callable[[FrameRecord], None]
 """Called with the record of every frame as it is kept, skipped frames included (e.g. to
@@ -169,13 +163,13 @@ stream the poses to disk while the run goes)."""
 class System:
     """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame and then `close`.
 
-    ``observer`` sees each frame with images and its `TrackedFrame`; ``record_observer``
+    ``observers`` see each frame with images and its `TrackedFrame`, in order; ``record_observer``
     sees every frame's `FrameRecord`, a frame whose images could not be read included,
     which is what a stream of the trajectory needs (the written trajectory has a row for
     every frame).
     """
 
-    def __init__(self, sequence: StereoSequence, config: Config, observer: FrameObserver | None = None,
+    def __init__(self, sequence: StereoSequence, config: Config, observers: Sequence[FrameObserver] = (),
                  record_observer: RecordObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
@@ -204,7 +198,7 @@ class System:
         self.result = RunResult(map=world_map, loop_closing=self.loop_closing, disparity_offset=disparity_offset,
                                 wall_seconds=0.0 if disparity_offset is None else disparity_offset.ms / 1e3,
                                 frontend_worker=self._frames.worker, kernels_seconds=kernels_seconds)
-        self._observer = observer
+        self._observers = tuple(observers)
         self._record_observer = record_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
 
@@ -247,16 +241,13 @@ class System:
         if tracked.keyframe is not None:
             T_c_r = np.eye(4)
         stage_ms["total"] = ms_since(start)
-        truth = moving_mask if moving_mask is not None else self.sequence.dynamic_mask(index)
-        point_counts, line_counts = _label_counts_against(truth, tracked.dynamic)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
                              n_points=len(features.points), n_lines=len(features.lines),
-                             dynamic_points=point_counts, dynamic_lines=line_counts,
                              reference_keyframe=reference, T_c_r=T_c_r,
                              keyframe=tracked.keyframe if self.local_mapping is not None else None)
         record = self._add(record, start)
-        if self._observer is not None:
-            self._observer(frame, tracked)
+        for observer in self._observers:
+            observer(frame, tracked)
         return record
 
     def _before_first_usable(self, index: int, timestamp: float, reason: str, start: float) -> FrameRecord:
@@ -383,16 +374,4 @@ def _new_keyframe(
         point_rejected=tracked.point_rejected,
         line_rejected=tracked.line_rejected,
     )
-
-
-def _label_counts_against(
-    mask: np.ndarray | None, labels: DynamicLabels | None
-) -> tuple[LabelCounts | None, LabelCounts | None]:
-    """A frame's dynamic labels against its moving-object mask (H, W); None, None without a mask."""
-    if mask is None:
-        return None, None
-    if labels is None:
-        return LabelCounts(), LabelCounts()
-    on_points, on_lines = features_on_mask(labels.point_uv, labels.line_segments, mask)
-    return label_counts(labels.point_dynamic, on_points), label_counts(labels.line_dynamic, on_lines)
 

@@ -9,6 +9,7 @@ import pytest
 from pld_slam.config import DynamicConfig, load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import ConfigError
+from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, transform_points
@@ -207,7 +208,8 @@ def test_rendered_traffic_is_flagged_and_the_street_is_not(street_with_traffic):
     sequence = open_sequence(street_with_traffic)
     files = [CONFIGS / "default.yaml", CONFIGS / "synthetic.yaml"]
     config = load_config(files)
-    dynamic = summarise_run(sequence, System(sequence, config).run(), config)["dynamic"]
+    scores = MaskScores(sequence)
+    dynamic = summarise_run(sequence, System(sequence, config, [scores]).run(), config, mask_scores=scores)["dynamic"]
     assert dynamic["points"]["precision"] > 0.7 and dynamic["points"]["recall"] > 0.5
     assert dynamic["lines"]["precision"] > 0.7 and dynamic["lines"]["recall"] > 0.6
     off = load_config(files, ["dynamic.grid=false", "dynamic.llg=false"])
@@ -218,7 +220,9 @@ def test_labels_from_the_masks_are_exactly_the_features_on_them(street_with_traf
     """``dynamic.from_masks`` (the bound of the detectors) labels by the mask: precision and recall 1."""
     sequence = open_sequence(street_with_traffic)
     config = load_config([CONFIGS / "default.yaml", CONFIGS / "synthetic.yaml"], ["dynamic.from_masks=true"])
-    dynamic = summarise_run(sequence, System(sequence, config).run(max_frames=6), config)["dynamic"]
+    scores = MaskScores(sequence)
+    result = System(sequence, config, [scores]).run(max_frames=6)
+    dynamic = summarise_run(sequence, result, config, mask_scores=scores)["dynamic"]
     for kind in ("points", "lines"):
         assert dynamic[kind]["precision"] == 1.0 and dynamic[kind]["recall"] == 1.0
         assert dynamic[kind]["flagged_on_them"] == dynamic[kind]["flagged"] == dynamic[kind]["on_moving_objects"] > 0

@@ -13,6 +13,7 @@ import pytest
 
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
+from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.mover_landmarks import LandmarkOrigin, MoverLandmarks, landmark_owner, start_frames
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.synth import build_scenario, write_sequence
@@ -36,9 +37,10 @@ def convoy_runs(tmp_path_factory):
     runs = {}
     for variant, overrides in DETECTORS.items():
         config = load_config([CONFIGS / "default.yaml", CONFIGS / "synthetic.yaml"], overrides)
-        system = System(sequence, config)
+        scores = MaskScores(sequence)
+        system = System(sequence, config, [scores])
         system.run()
-        runs[variant] = summarise_run(sequence, system.result, config), system
+        runs[variant] = summarise_run(sequence, system.result, config, mask_scores=scores), system
     return runs
 
 

@@ -8,8 +8,9 @@ from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.io.map_ply import MapCloud, map_cloud, read_map_ply, write_map_ply
-from pld_slam.io.run_output import KEYFRAMES_TUM, MAP_PLY, TIMING_PLOT, write_run_outputs
+from pld_slam.io.run_output import KEYFRAMES_TUM, MAP_PLY, TIMING_PLOT
 from pld_slam.io.trajectory import read_trajectory
+from pld_slam.report.run_files import write_run_outputs
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 

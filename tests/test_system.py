@@ -21,24 +21,17 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from pld_slam.config import config_to_dict, load_config
-from pld_slam.datasets import open_sequence
+from pld_slam.datasets import StereoSequence, open_sequence
 from pld_slam.errors import ConfigError, PldSlamError, Terminated
 from pld_slam.eval import evaluate
+from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.geometry.se3 import inverse, se3_exp
-from pld_slam.io.run_output import (
-    FRAMES,
-    LOOP_COLUMNS,
-    LOOPS,
-    PLOT,
-    SUMMARY,
-    TRAJECTORY_KITTI,
-    TRAJECTORY_TUM,
-    write_run_outputs,
-)
+from pld_slam.io.run_output import FRAMES, LOOPS, PLOT, SUMMARY, TRAJECTORY_KITTI, TRAJECTORY_TUM
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.loop.vocabulary import build_vocabulary
 from pld_slam.loop.vocabulary_training import training_descriptors
+from pld_slam.report.run_files import LOOP_COLUMNS, write_run_outputs
 from pld_slam.synth import write_sequence
 from pld_slam.system import STAGES, System
 from pld_slam.tracking.tracker import TrackingStatus
@@ -375,6 +368,32 @@ def test_frames_csv_has_a_row_per_frame_with_its_stage_times_and_the_map_growing
     assert table["keyframes"].iloc[-1] == summary["mapping"]["keyframes_alive"]
     assert (table["point_landmarks"].iloc[1:] > 0).all() and (table["rss_mb"] > 50).all()
     assert list(table["points"]) == [r.n_points for r in full_run.records]
+
+
+# --- evaluation as an observer --------------------------------------------------------
+
+
+def test_a_run_reads_no_mask_unless_an_observer_scores_its_labels(folder, config, monkeypatch):
+    """The moving-object masks are ground truth: the pipeline reads none (``dynamic.from_masks``
+    off), so a run without `MaskScores` costs no mask read and its summary has no scores."""
+    sequence = open_sequence(folder)
+    assert sequence.dynamic_mask_paths is not None  # a synthetic sequence: it has masks
+
+    def no_mask(self, index: int) -> np.ndarray:
+        raise AssertionError(f"the mask of frame {index} was read")
+
+    monkeypatch.setattr(StereoSequence, "dynamic_mask", no_mask)
+    result = System(sequence, config).run(max_frames=3)
+    assert summarise_run(sequence, result, config)["dynamic"]["points"]["precision"] is None
+
+
+def test_mask_scores_score_every_frame_with_images_for_the_summary(sequence, config):
+    scores = MaskScores(sequence)
+    result = System(sequence, config, [scores]).run(max_frames=4)
+    assert list(scores.points) == list(scores.lines) == [r.index for r in result.records]
+    points = summarise_run(sequence, result, config, mask_scores=scores)["dynamic"]["points"]
+    assert points["on_moving_objects"] == 0  # the static street: nothing moves
+    assert points["flagged"] == sum(r.counts.dynamic_points for r in result.records)
 
 
 # --- summarise_run --------------------------------------------------------------------

@@ -1,11 +1,19 @@
 """Dynamic-feature labels against ground-truth masks of moving objects: precision and recall.
 
 Which features lie on a moving object is decided by `pld_slam.tracking.moving_masks`.
+`MaskScores` is the evaluation's observer of a run (`pld_slam.system.FrameObserver`):
+attached, it reads each tracked frame's mask and scores the frame's labels; a run without
+it reads no mask for scoring.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
+
+from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.moving_masks import features_on_mask
+from pld_slam.tracking.tracker import TrackedFrame
 
 
 @dataclass(frozen=True)
@@ -46,3 +54,33 @@ def label_counts(flagged: np.ndarray, moving: np.ndarray) -> LabelCounts:
         int(np.count_nonzero(~flagged & moving)),
         int(np.count_nonzero(~flagged & ~moving)),
     )
+
+
+def frame_label_counts(labels: DynamicLabels | None, mask: np.ndarray) -> tuple[LabelCounts, LabelCounts]:
+    """A frame's dynamic labels of points and lines against its moving-object mask (H, W);
+    empty counts when the frame has no labels."""
+    if labels is None:
+        return LabelCounts(), LabelCounts()
+    on_points, on_lines = features_on_mask(labels.point_uv, labels.line_segments, mask)
+    return label_counts(labels.point_dynamic, on_points), label_counts(labels.line_dynamic, on_lines)
+
+
+class MaskScores:
+    """A `System` frame observer scoring each tracked frame's dynamic labels against the
+    sequence's moving-object mask of that frame (`StereoSequence.dynamic_mask`).
+
+    ``points`` and ``lines`` hold the `LabelCounts` of each frame the observer saw, by frame
+    index; frames it did not see (no images, or before the first usable frame) have none.
+    The sequence must have masks.
+    """
+
+    def __init__(self, sequence: StereoSequence) -> None:
+        if sequence.dynamic_mask_paths is None:
+            raise ValueError(f"{sequence.root} has no dynamic_masks/ folder to score the labels against")
+        self.sequence = sequence
+        self.points: dict[int, LabelCounts] = {}
+        self.lines: dict[int, LabelCounts] = {}
+
+    def __call__(self, frame: StereoFrame, tracked: TrackedFrame) -> None:
+        mask = self.sequence.dynamic_mask(frame.index)
+        self.points[frame.index], self.lines[frame.index] = frame_label_counts(tracked.dynamic, mask)

@@ -14,7 +14,7 @@ import numpy as np
 from pld_slam.config import Config, config_to_dict
 from pld_slam.datasets import StereoSequence
 from pld_slam.errors import TrajectoryError
-from pld_slam.eval.dynamic_labels import LabelCounts
+from pld_slam.eval.dynamic_labels import LabelCounts, MaskScores
 from pld_slam.eval.loop_truth import score_loops
 from pld_slam.eval.metrics import EvalResult, evaluate
 from pld_slam.loop.loop_closing import LoopClosing
@@ -84,13 +84,15 @@ def accuracy(groundtruth: Trajectory | None, estimate: Trajectory) -> dict[str, 
         return dict.fromkeys(_ACCURACY_KEYS)
 
 
-def dynamic_summary(result: RunResult) -> dict:
-    """Features marked dynamic per frame, and (with masks) precision and recall of the labels.
+def dynamic_summary(result: RunResult, mask_scores: MaskScores | None = None) -> dict:
+    """Features marked dynamic per frame, and (with ``mask_scores``) precision and recall of the labels.
 
     ``per_frame`` lists, for every frame, how many matched points and lines were marked
     dynamic and how many were matched; ``points`` / ``lines`` hold precision and recall
-    over the whole run against the moving-object masks, and the counts behind them
-    (``flagged``, ``on_moving_objects``, ``flagged_on_them``), null without masks.
+    over the whole run against the moving-object masks (``mask_scores``, the run's
+    observer), and the counts behind them (``flagged``, ``on_moving_objects``,
+    ``flagged_on_them``), null without scores or when a frame has none (its images could
+    not be used).
     """
     records = result.records
     per_frame = [
@@ -103,12 +105,13 @@ def dynamic_summary(result: RunResult) -> dict:
         }
         for r in records
     ]
+    points, lines = ({}, {}) if mask_scores is None else (mask_scores.points, mask_scores.lines)
     marked = sum(f["points"] + f["lines"] for f in per_frame)
     matched = sum(f["matched_points"] + f["matched_lines"] for f in per_frame)
     return {
         "marked_fraction": marked / matched if matched else None,
-        "points": _label_quality([r.dynamic_points for r in records]),
-        "lines": _label_quality([r.dynamic_lines for r in records]),
+        "points": _label_quality([points.get(r.index) for r in records]),
+        "lines": _label_quality([lines.get(r.index) for r in records]),
         "per_frame": per_frame,
     }
 
@@ -225,12 +228,15 @@ def _median_or_none(values: list[int]) -> float | None:
 
 
 def summarise_run(
-    sequence: StereoSequence, result: RunResult, config: Config, config_sources: Sequence[str] | None = None
+    sequence: StereoSequence, result: RunResult, config: Config, config_sources: Sequence[str] | None = None,
+    mask_scores: MaskScores | None = None,
 ) -> dict:
     """JSON-ready summary of a run on ``sequence`` (see the module docstring).
 
     ``config_sources`` (`RunConfig.sources`: defaults, family file, ``--config`` files,
     ``--set`` overrides) is written as ``config_sources``, null when not given.
+    ``mask_scores``, the observer that scored the run's dynamic labels against the
+    sequence's masks, gives ``dynamic``'s precision and recall (`dynamic_summary`).
     """
     records = result.records
     return {
@@ -263,7 +269,7 @@ def summarise_run(
         },
         "mapping": mapping_summary(result),
         "loop": loop_summary(result, config, sequence.groundtruth),
-        "dynamic": dynamic_summary(result),
+        "dynamic": dynamic_summary(result, mask_scores),
         "config": config_to_dict(config),
         "config_sources": None if config_sources is None else list(config_sources),
     }

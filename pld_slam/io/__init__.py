@@ -1,1 +1,5 @@
-"""Files in and out: trajectories in the TUM, KITTI and EuRoC formats (`trajectory`)."""
+"""File formats only: trajectories in the TUM, KITTI and EuRoC formats (`trajectory`), a run's
+output files (`run_output`), the map (`map_ply`) and dynamic-label overlays (`dynamic_overlays`).
+
+Which files a run writes is decided above, in `pld_slam.report.run_files`.
+"""

@@ -1,7 +1,7 @@
-"""The files of a run: trajectories (KITTI, TUM, EuRoC), summary.json, frames.csv (a row per
-frame), loops.csv, a trajectory plot and a plot of the cost per frame, the map (map.ply) and
-the keyframe trajectory (keyframes.tum.txt), and the partial trajectory streamed while the
-run goes.
+"""The file formats of a run's output folder: the names of its files, summary.json, frames.csv
+(a row per frame), loops.csv and the partial trajectory streamed while the run goes; the
+trajectories and the map are written by `pld_slam.io.trajectory` and `pld_slam.io.map_ply`.
+Which files a run writes, its plots included, is `pld_slam.report.run_files`'s.
 
 An output folder holds one run's files only: `prepare_output_folder` deletes the files
 an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
@@ -13,7 +13,6 @@ folder that cannot be written reaches the user as one line, like bad input, and 
 an internal error.
 """
 
-import dataclasses
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,11 +21,7 @@ import numpy as np
 import pandas as pd
 
 from pld_slam.errors import OutputError
-from pld_slam.eval.plots import plot_trajectory_top_view
-from pld_slam.eval.timing_plot import plot_frame_times
-from pld_slam.io.map_ply import MapCloud, write_map_ply
-from pld_slam.io.trajectory import TUM_HEADER, tum_rows, write_trajectory
-from pld_slam.loop.loop_closing import LoopCandidate
+from pld_slam.io.trajectory import TUM_HEADER, tum_rows
 from pld_slam.system import STAGES, FrameRecord
 from pld_slam.trajectory import Trajectory
 
@@ -124,69 +119,20 @@ class PartialTrajectory:
             raise OutputError.from_os_error(self.path, error) from None
 
 
-def write_run_outputs(
-    out_dir: Path,
-    estimate: Trajectory,
-    summary: dict,
-    groundtruth: Trajectory | None,
-    title: str,
-    formats: tuple[str, ...] = DEFAULT_FORMATS,
-    records: Sequence[FrameRecord] = (),
-    cloud: MapCloud | None = None,
-    keyframes: Trajectory | None = None,
-) -> list[Path]:
-    """Write the run's files into ``out_dir`` (created if needed); return their paths.
-
-    The trajectory files, one per format of ``formats`` (named by `TRAJECTORY_FILES`),
-    hold one row per processed frame (``T_w_c``, world = first camera). ``frames.csv``
-    has a row per frame of ``records`` (`frame_table`), written when there is one, and
-    ``timing.png`` plots it (`pld_slam.eval.timing_plot`) from 2 frames on. ``loops.csv``
-    lists the loop candidates of the summary's ``loop`` section, one row each (written
-    when the run had a loop stage and a frame); the plot marks the closed loops and is
-    skipped for fewer than 2 frames. A run with a map writes ``map.ply`` (``cloud``,
-    `pld_slam.io.map_ply`) and ``keyframes.tum.txt`` (``keyframes``, when it has one). A
-    file that cannot be written raises `OutputError` naming it.
-    """
-    create_output_folder(out_dir)
-    try:
-        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records, cloud, keyframes)
-    except OSError as error:
-        raise OutputError.from_os_error(out_dir, error) from None
+def write_summary(path: Path, summary: dict) -> None:
+    """Write ``summary.json``: the run summary as indented JSON and a newline."""
+    path.write_text(json.dumps(summary, indent=2) + "\n")
 
 
-def _write_run_files(
-    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
-    formats: tuple[str, ...], records: Sequence[FrameRecord], cloud: MapCloud | None, keyframes: Trajectory | None,
-) -> list[Path]:
-    """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
-    written = []
-    if len(estimate) > 0:
-        for fmt in formats:
-            write_trajectory(out_dir / TRAJECTORY_FILES[fmt], estimate, fmt)
-            written.append(out_dir / TRAJECTORY_FILES[fmt])
-    (out_dir / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
-    written.append(out_dir / SUMMARY)
-    if records:
-        table = frame_table(records)
-        table.to_csv(out_dir / FRAMES, index=False, float_format="%.3f")
-        written.append(out_dir / FRAMES)
-        if len(table) >= 2:
-            plot_frame_times(out_dir / TIMING_PLOT, table, title=f"{title}: cost per frame")
-            written.append(out_dir / TIMING_PLOT)
-    loop = summary.get("loop")
-    if loop is not None and len(estimate) > 0:
-        pd.DataFrame(loop["candidates"], columns=LOOP_COLUMNS).to_csv(out_dir / LOOPS, index=False)
-        written.append(out_dir / LOOPS)
-    if len(estimate) >= 2:
-        plot_trajectory_top_view(out_dir / PLOT, groundtruth, estimate, title=title, loop_edges=closed_loop_times(loop))
-        written.append(out_dir / PLOT)
-    if cloud is not None:
-        write_map_ply(out_dir / MAP_PLY, cloud)
-        written.append(out_dir / MAP_PLY)
-    if keyframes is not None and len(keyframes) > 0:
-        write_trajectory(out_dir / KEYFRAMES_TUM, keyframes, "tum")
-        written.append(out_dir / KEYFRAMES_TUM)
-    return written
+def write_frame_table(path: Path, table: pd.DataFrame) -> None:
+    """Write ``frames.csv``: the `frame_table`, times and milliseconds with 3 decimals."""
+    table.to_csv(path, index=False, float_format="%.3f")
+
+
+def write_loop_candidates(path: Path, candidates: Sequence[dict], columns: Sequence[str]) -> None:
+    """Write ``loops.csv``: a row per loop candidate (a summary's ``loop.candidates``), ``columns``
+    in order (the header alone when there is none)."""
+    pd.DataFrame(list(candidates), columns=list(columns)).to_csv(path, index=False)
 
 
 def frame_table(records: Sequence[FrameRecord]) -> pd.DataFrame:
@@ -222,12 +168,3 @@ def frame_table(records: Sequence[FrameRecord]) -> pd.DataFrame:
         }
     )
 
-
-LOOP_COLUMNS = [field.name for field in dataclasses.fields(LoopCandidate)]
-"""The columns of ``loops.csv``: those of `pld_slam.loop.loop_closing.LoopCandidate`."""
-
-
-def closed_loop_times(loop: dict | None) -> np.ndarray:
-    """The timestamps (K, 2) [s] of the two keyframes of each closed loop in a summary's ``loop`` section."""
-    accepted = [(c["time"], c["candidate_time"]) for c in (loop or {}).get("candidates", []) if c["accepted"]]
-    return np.array(accepted, dtype=np.float64).reshape(-1, 2)

@@ -3,8 +3,9 @@
 `plan_cells` turns sequences x variants into `CellSpec`s: plain data a worker on any
 machine can run, carrying the cell's effective config (defaults, the sequence's family
 file, the ablation's ``--set``, then the variant's overlay, so that the variant always
-says what it says) and its key. `execute_cell` runs one: ``pld-slam run`` in a child
-process, so a crash, a killed worker or an exhausted memory costs that cell only, and a
+says what it says) and its key. `execute_cell` runs one in a child process
+(`pld_slam.report.cell_run`: `pld_slam.report.run_files.run_and_write`, what ``pld-slam
+run`` calls), so a crash, a killed worker or an exhausted memory costs that cell only, and a
 time limit and a memory limit can stop it. It returns the run's files as bytes
 (`CellOutcome`), so a Dask worker needs no shared output folder, only the sequences at the
 same path.
@@ -52,7 +53,7 @@ from pld_slam.run_config import load_run_config
 from pld_slam.timing import process_resident_mb
 
 INTERRUPT_GRACE_SECONDS = 30.0
-"""After its time or memory limit a cell gets SIGTERM, which ``pld-slam run`` handles as
+"""After its time or memory limit a cell gets SIGTERM, which a cell's run handles as
 Ctrl-C (it then writes its trajectory so far), and this long to exit before it is killed."""
 
 MEMORY_POLL_SECONDS = 0.5
@@ -195,11 +196,10 @@ def plan_cells(
 
 
 def run_command(spec: CellSpec, run_dir: Path, config_path: Path) -> list[str]:
-    """The child process's command line: ``pld-slam run`` with the cell's config only."""
-    command = [sys.executable, "-m", "pld_slam_cli", "run", spec.sequence_dir,
-               "--out", str(run_dir), "--config", str(config_path)]
+    """The child process's command line: `pld_slam.report.cell_run` with the cell's config only."""
+    command = [sys.executable, "-m", "pld_slam.report.cell_run", spec.sequence_dir, str(run_dir), str(config_path)]
     if spec.max_frames is not None:
-        command += ["--max-frames", str(spec.max_frames)]
+        command.append(str(spec.max_frames))
     return command
 
 

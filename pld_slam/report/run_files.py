@@ -1,0 +1,219 @@
+"""A run and its files: `run_and_write` runs the pipeline on a sequence and writes its output folder.
+
+The library's entry point for "run a sequence and write its files": ``pld-slam run`` and
+``pld-slam demo`` call it, and so does every ablation cell (`pld_slam.report.cell_run`,
+the cell's child process), so a cell measures exactly what a user runs. It attaches the
+run's observers: the partial trajectory streamed to disk (`PartialTrajectory`), the
+dynamic-label overlays when asked (`overlay_writer`), and the evaluation of the dynamic
+labels against the sequence's moving-object masks when it has them
+(`pld_slam.eval.dynamic_labels.MaskScores`; without masks no mask is read). It then
+decides which files the run writes (`write_run_outputs`: trajectories, summary, frame
+table, loops, plots, map), each in its format from `pld_slam.io`.
+"""
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.errors import OutputError
+from pld_slam.eval.dynamic_labels import MaskScores
+from pld_slam.eval.plots import plot_trajectory_top_view
+from pld_slam.eval.run_summary import summarise_run
+from pld_slam.eval.timing_plot import plot_frame_times
+from pld_slam.io.dynamic_overlays import write_dynamic_overlay
+from pld_slam.io.map_ply import MapCloud, map_cloud, write_map_ply
+from pld_slam.io.run_output import (
+    DEFAULT_FORMATS,
+    FRAMES,
+    KEYFRAMES_TUM,
+    LOOPS,
+    MAP_PLY,
+    PLOT,
+    SUMMARY,
+    TIMING_PLOT,
+    TRAJECTORY_FILES,
+    TRAJECTORY_PARTIAL,
+    PartialTrajectory,
+    create_output_folder,
+    frame_table,
+    prepare_output_folder,
+    write_frame_table,
+    write_loop_candidates,
+    write_summary,
+)
+from pld_slam.io.trajectory import write_trajectory
+from pld_slam.loop.loop_closing import LoopCandidate
+from pld_slam.run_config import load_run_config
+from pld_slam.system import FrameObserver, FrameRecord, System
+from pld_slam.tracking.tracker import TrackedFrame
+from pld_slam.trajectory import Trajectory
+
+LOOP_COLUMNS = [field.name for field in dataclasses.fields(LoopCandidate)]
+"""The columns of ``loops.csv``: those of `pld_slam.loop.loop_closing.LoopCandidate`."""
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped a run after its files were written; the message says how far it got and what
+    it wrote."""
+
+
+def run_and_write(
+    sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
+    save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
+) -> dict:
+    """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
+
+    The configuration is `load_run_config`'s: defaults, the dataset family's file, then
+    ``config_paths`` and ``overrides``; its ``dataset.scale`` scales the sequence
+    (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats;
+    ``save_dynamic`` a folder for each frame's dynamic-label overlay (`overlay_writer`).
+    A sequence with moving-object masks has its dynamic labels scored against them
+    (`MaskScores`), the summary's precision and recall.
+
+    The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
+    so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
+    `PartialTrajectory`) after the input and config are checked and before the first
+    frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
+    after every frame is lost. Each frame's tracked pose is appended to that file as
+    the run goes, so a run killed hard keeps its poses so far; the file is deleted once
+    the final trajectory files are written. Ctrl-C during the frames raises
+    `RunInterrupted` once the files are written, naming them (`interrupted_message`).
+
+    Returns
+    -------
+    dict
+        The run's summary (`pld_slam.eval.run_summary.summarise_run`), as written to ``summary.json``.
+    """
+    run_config = load_run_config(sequence, config_paths, overrides)
+    sequence = sequence.scaled(run_config.config.dataset.scale)
+    mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
+    observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
+    observers += [] if mask_scores is None else [mask_scores]
+    partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
+    system = System(sequence, run_config.config, observers,
+                    record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
+    try:
+        prepare_output_folder(out)
+        partial.start()
+    except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
+        system.close()
+        raise
+    n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
+
+    def progress(indices):
+        return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
+
+    interrupted = None
+    try:
+        system.run(max_frames=max_frames, progress=progress)
+    except KeyboardInterrupt as interrupt:
+        interrupted = interrupt  # raised again below, once the files are written
+    finally:
+        partial.close()
+        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
+        world_map = system.result.map
+        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
+                                    title=sequence.name, formats=formats, records=system.result.records,
+                                    cloud=None if world_map is None else map_cloud(world_map),
+                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
+        partial.discard()
+    if interrupted is not None:
+        raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
+    return summary
+
+
+def interrupted_message(summary: dict, n_frames: int, out: Path, written: list[Path]) -> str:
+    """How far an interrupted run got and which files it wrote where: ``after 5 of 12 frames; wrote ... in OUT/``."""
+    names = ", ".join(path.name for path in written)
+    return f"after {summary['frames']} of {n_frames} frames; wrote {names} in {out}/"
+
+
+def overlay_writer(folder: Path, sequence: StereoSequence) -> FrameObserver:
+    """A `System` observer writing each frame's dynamic-label overlay as ``folder/NNNNNN.png``.
+
+    The folder is created here, before the first frame, so that one that cannot be
+    created stops the run (`OutputError`) before any work is done.
+    """
+    create_output_folder(folder)
+
+    def write(frame: StereoFrame, tracked: TrackedFrame) -> None:
+        if tracked.dynamic is not None:
+            path = folder / f"{frame.index:06d}.png"
+            write_dynamic_overlay(path, frame.left, tracked.dynamic, sequence.dynamic_mask(frame.index))
+
+    return write
+
+
+def write_run_outputs(
+    out_dir: Path,
+    estimate: Trajectory,
+    summary: dict,
+    groundtruth: Trajectory | None,
+    title: str,
+    formats: tuple[str, ...] = DEFAULT_FORMATS,
+    records: Sequence[FrameRecord] = (),
+    cloud: MapCloud | None = None,
+    keyframes: Trajectory | None = None,
+) -> list[Path]:
+    """Write the run's files into ``out_dir`` (created if needed); return their paths.
+
+    The trajectory files, one per format of ``formats`` (named by `TRAJECTORY_FILES`),
+    hold one row per processed frame (``T_w_c``, world = first camera). ``frames.csv``
+    has a row per frame of ``records`` (`frame_table`), written when there is one, and
+    ``timing.png`` plots it (`pld_slam.eval.timing_plot`) from 2 frames on. ``loops.csv``
+    lists the loop candidates of the summary's ``loop`` section, one row each (written
+    when the run had a loop stage and a frame); the plot marks the closed loops and is
+    skipped for fewer than 2 frames. A run with a map writes ``map.ply`` (``cloud``,
+    `pld_slam.io.map_ply`) and ``keyframes.tum.txt`` (``keyframes``, when it has one). A
+    file that cannot be written raises `OutputError` naming it.
+    """
+    create_output_folder(out_dir)
+    try:
+        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records, cloud, keyframes)
+    except OSError as error:
+        raise OutputError.from_os_error(out_dir, error) from None
+
+
+def _write_run_files(
+    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
+    formats: tuple[str, ...], records: Sequence[FrameRecord], cloud: MapCloud | None, keyframes: Trajectory | None,
+) -> list[Path]:
+    """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
+    written = []
+    if len(estimate) > 0:
+        for fmt in formats:
+            write_trajectory(out_dir / TRAJECTORY_FILES[fmt], estimate, fmt)
+            written.append(out_dir / TRAJECTORY_FILES[fmt])
+    write_summary(out_dir / SUMMARY, summary)
+    written.append(out_dir / SUMMARY)
+    if records:
+        table = frame_table(records)
+        write_frame_table(out_dir / FRAMES, table)
+        written.append(out_dir / FRAMES)
+        if len(table) >= 2:
+            plot_frame_times(out_dir / TIMING_PLOT, table, title=f"{title}: cost per frame")
+            written.append(out_dir / TIMING_PLOT)
+    loop = summary.get("loop")
+    if loop is not None and len(estimate) > 0:
+        write_loop_candidates(out_dir / LOOPS, loop["candidates"], LOOP_COLUMNS)
+        written.append(out_dir / LOOPS)
+    if len(estimate) >= 2:
+        plot_trajectory_top_view(out_dir / PLOT, groundtruth, estimate, title=title, loop_edges=closed_loop_times(loop))
+        written.append(out_dir / PLOT)
+    if cloud is not None:
+        write_map_ply(out_dir / MAP_PLY, cloud)
+        written.append(out_dir / MAP_PLY)
+    if keyframes is not None and len(keyframes) > 0:
+        write_trajectory(out_dir / KEYFRAMES_TUM, keyframes, "tum")
+        written.append(out_dir / KEYFRAMES_TUM)
+    return written
+
+
+def closed_loop_times(loop: dict | None) -> np.ndarray:
+    """The timestamps (K, 2) [s] of the two keyframes of each closed loop in a summary's ``loop`` section."""
+    accepted = [(c["time"], c["candidate_time"]) for c in (loop or {}).get("candidates", []) if c["accepted"]]
+    return np.array(accepted, dtype=np.float64).reshape(-1, 2)
