@@ -90,7 +90,7 @@ def make_kitti_raw(
     write_images(folder / "image_01" / "data", names, seed=1)
     write_lines(
         folder / "image_00" / "timestamps.txt",
-        [f"2011-01-01 00:00:0{i}.100000001" for i in range(n)],
+        [f"2011-01-01 00:00:{i:02d}.100000001" for i in range(n)],
     )
     write_lines(
         date / "calib_cam_to_cam.txt",
@@ -744,6 +744,37 @@ def test_euroc_pairs_images_by_timestamp(tmp_path):
     message = open_error(folder)
     assert "cam1/data/1403715273312142976.png: no image with the same timestamp in " in message
     assert message.endswith("cam0/data.csv")
+
+
+def unpad_names(folder: Path) -> None:
+    """Rename each file ``000012.png`` of ``folder`` to ``12.png`` (names without zero padding)."""
+    for path in folder.iterdir():
+        path.rename(path.with_name(f"{int(path.stem)}{path.suffix}"))
+
+
+@pytest.mark.parametrize(
+    "make, folders",
+    [
+        (lambda root, n: make_generic(root, rectified_calibration(), n=n), ["left", "right"]),
+        (make_kitti_odometry, ["image_0", "image_1"]),
+        (make_kitti_raw, ["image_00/data", "image_01/data", "oxts/data"]),
+    ],
+)
+def test_frames_named_without_zero_padding_are_read_in_numeric_order(tmp_path, make, folders):
+    folder = make(tmp_path, n=12)
+    for relative in folders:
+        unpad_names(folder / relative)
+    frames = open_sequence(folder).frames
+    for paths in (frames.left_paths, frames.right_paths):
+        assert [path.name for path in paths] == [f"{i}.png" for i in range(12)]
+
+
+def test_kitti_raw_oxts_packets_named_without_zero_padding_follow_the_frames(tmp_path):
+    folder = make_kitti_raw(tmp_path, n=12)
+    for relative in ("image_00/data", "image_01/data", "oxts/data"):
+        unpad_names(folder / relative)
+    forward = open_sequence(folder).groundtruth.positions[:, 2]
+    np.testing.assert_allclose(forward, np.arange(12.0), atol=1e-6)
 
 
 # ---------------------------------------------------------------- frame rate and scaling

@@ -20,6 +20,8 @@ Folder::
     fps: 10                    # optional, default 10 (see below)
     T_gt_left: [[...], [...], [...], [...]]   # optional, default identity (see below)
 
+- Frames are in natural order of the left file names (``2.png`` before ``10.png``,
+  `pld_slam.datasets.files.natural_key`), so names need no zero padding.
 - Images are paired by file name (`pld_slam.datasets.files.paired_images`), so both
   folders must name a pair alike (``left/0001.png`` and ``right/0001.png``); a file
   without a partner of the same name raises, naming it.

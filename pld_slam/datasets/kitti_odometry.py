@@ -18,8 +18,8 @@
   folder (the shared extract holds the first 51 frames). Fewer rows give ground truth for
   the first frames only. The first ground-truth pose is moved to identity.
 - Dynamic masks (optional, synthetic sequences): ``dynamic_masks/*.png``, one per frame
-  in file-name order; a different count raises, as a half-written mask folder would
-  silently corrupt the dynamic-feature metrics.
+  in natural file-name order (as the images); a different count raises, as a
+  half-written mask folder would silently corrupt the dynamic-feature metrics.
 """
 
 import json
@@ -29,7 +29,7 @@ import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
-from pld_slam.datasets.files import paired_image_folders, png_size, read_times
+from pld_slam.datasets.files import natural_sorted, paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.trajectory import Trajectory
@@ -108,11 +108,11 @@ def _groundtruth(folder: Path, timestamps: np.ndarray) -> Trajectory | None:
 
 
 def _dynamic_mask_paths(folder: Path, n_frames: int) -> list[Path] | None:
-    """``dynamic_masks/*.png`` sorted by name, one per frame, or None without the folder."""
+    """``dynamic_masks/*.png`` in natural name order (as the images), one per frame, or None without the folder."""
     mask_folder = folder / "dynamic_masks"
     if not mask_folder.is_dir():
         return None
-    paths = sorted(mask_folder.glob("*.png"))
+    paths = natural_sorted(mask_folder.glob("*.png"))
     if len(paths) != n_frames:
         raise DatasetError(f"{mask_folder}: {len(paths)} masks for {n_frames} frames")
     return paths

@@ -9,8 +9,9 @@
   added once in float64, which keeps them to float64's resolution (about 0.2 us).
 - Camera: ``P_rect_00`` and ``P_rect_01`` of ``calib_cam_to_cam.txt`` one folder up
   (``S_rect_00`` gives the image size).
-- Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame, turned into poses
-  as the KITTI raw devkit's ``convertOxtsToPose`` does (Mercator projection scaled by the
+- Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame (in natural name
+  order, as the images), turned into poses as the KITTI raw devkit's
+  ``convertOxtsToPose`` does (Mercator projection scaled by the
   first latitude, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), then moved from the IMU to the
   rectified left camera with ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu``
   (``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``):
@@ -38,7 +39,7 @@ from pld_slam.datasets.calibration import (
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import paired_image_folders, read_times
+from pld_slam.datasets.files import natural_sorted, paired_image_folders, read_times
 from pld_slam.datasets.kitti_odometry import FRAME_RATE
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import interpolate_poses, inverse, make_pose
@@ -106,7 +107,7 @@ def _groundtruth(
     oxts_folder = folder / "oxts" / "data"
     if not oxts_folder.is_dir():
         return None
-    packet_paths = sorted(oxts_folder.glob("*.txt"))
+    packet_paths = natural_sorted(oxts_folder.glob("*.txt"))
     if len(packet_paths) != len(timestamps):
         raise DatasetError(
             f"{oxts_folder}: {len(packet_paths)} OXTS packets for {len(timestamps)} frames"
