@@ -251,6 +251,36 @@ def test_run_stops_on_left_and_right_images_that_do_not_pair_naming_the_first(sy
     assert result.output == f"error: {unpaired}: no image with the same name in {other}\n"
 
 
+def with_line(sequence: Path, relative: str, line_number: int, text: str) -> Path:
+    """Replace line ``line_number`` (from 1) of the file ``relative`` of ``sequence`` by ``text``."""
+    path = sequence / relative
+    lines = path.read_text().splitlines()
+    lines[line_number - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("line_number, time", [(6, "inf"), (3, "nan")])
+def test_a_time_that_is_not_finite_stops_the_run_naming_times_txt_and_its_line(
+        synthetic_sequence, tmp_path, no_frame_may_run, line_number, time):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    times = with_line(sequence, "times.txt", line_number, time)
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {times}:{line_number}: not a finite time: {time!r}\n"
+
+
+def test_a_ground_truth_pose_that_is_not_finite_stops_the_run_naming_its_file_and_line(
+        synthetic_sequence, tmp_path, no_frame_may_run):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    poses = sequence / "poses.txt"
+    row = poses.read_text().splitlines()[2].split()
+    with_line(sequence, "poses.txt", 3, " ".join(["nan", *row[1:]]))
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {poses}:3: not a finite number: 'nan'\n"
+
+
 @pytest.fixture
 def no_frame_may_run(monkeypatch):
     """Makes processing any frame fail the test: the check must come before the first frame."""

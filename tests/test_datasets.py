@@ -352,6 +352,8 @@ def test_kitti_shorter_poses_cover_the_first_frames(tmp_path):
         (rewrite("times.txt", "0.0", "0.1"), "times.txt: 2 times for 3 image pairs"),
         (rewrite("times.txt", "0.0", "zero", "0.2"), "times.txt:2: not a time"),
         (rewrite("times.txt", "0.0", "0.2", "0.1"), "times.txt:3: times must increase"),
+        (rewrite("times.txt", "0.0", "0.1", "inf"), "times.txt:3: not a finite time: 'inf'"),
+        (rewrite("times.txt", "0.0", "nan", "0.2"), "times.txt:2: not a finite time: 'nan'"),
         (remove("image_1/000002.png"), "image_0/000002.png: no image with the same name in "),
         (empty("image_1"), "image_1: no .png images"),
         (lambda f: write_images(f / "dynamic_masks", ["000000.png"]), "dynamic_masks: 1 masks for 3 frames"),
@@ -456,6 +458,10 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
          "timestamps.txt: 1 times for 3 image pairs"),
         (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1", "yesterday", "2011-01-01 00:00:02"),
          "timestamps.txt:2: not a time"),
+        (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1", "NaT", "2011-01-01 00:00:02"),
+         "timestamps.txt:2: not a time: 'NaT'"),
+        (rewrite("oxts/data/0000000001.txt", "49.0 nan 110 0 0 0"),
+         "0000000001.txt: OXTS packet's lon is 'nan', not a finite number"),
         (remove("oxts/data/0000000002.txt"), "oxts/data: 2 OXTS packets for 3 frames"),
         (rewrite("oxts/data/0000000001.txt", "49.0 8.4"), "0000000001.txt: OXTS packet has 2 fields"),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001", "2011-01-01 00:00:01.160000001",
@@ -799,6 +805,13 @@ def test_a_synthetic_sequence_takes_its_rate_from_synth_json(tmp_path):
     sequence = open_sequence(folder)
     assert (sequence.name, sequence.frame_rate.hz, sequence.frame_rate.source) == (
         "synth_static", 7.5, "frame_rate of synth.json")
+
+
+def test_a_synth_json_rate_that_is_not_finite_gives_way_to_the_median_time_step(tmp_path):
+    folder = make_kitti_odometry(tmp_path)
+    (folder / "synth.json").write_text('{"scenario": "static", "frame_rate": Infinity}')
+    rate = open_sequence(folder).frame_rate
+    assert (rate.hz, rate.source) == (pytest.approx(10.0), "median step of times.txt")
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,7 @@
 """Files shared by the dataset layouts: image listings in natural name order, left/right
 pairing, PNG sizes, times files, and ground truth sampled at frame times."""
 
+import math
 import re
 import struct
 from collections.abc import Callable, Hashable, Iterable, Mapping
@@ -149,7 +150,8 @@ def read_times(
         numbers by default (KITTI odometry ``times.txt``).
 
     Raises `DatasetError` naming the file (and line) when it is missing, a line does not
-    parse, the count differs from ``n_frames`` or the times do not increase strictly.
+    parse or is not finite (``nan``, ``inf``), the count differs from ``n_frames`` or the
+    times do not increase strictly.
     """
     if not path.is_file():
         raise DatasetError(f"{path}: times file not found")
@@ -170,11 +172,14 @@ def read_times(
 def _parse_time(
     path: Path, line_number: int, text: str, parse_line: Callable[[str], float]
 ) -> float:
-    """The time [s] written on one line of a times file."""
+    """The time [s] written on one line of a times file; finite (``nan`` and ``inf`` raise)."""
     try:
-        return parse_line(text)
+        seconds = parse_line(text)
     except ValueError:
         raise DatasetError(f"{path}:{line_number}: not a time: {text[:40]!r}") from None
+    if not math.isfinite(seconds):
+        raise DatasetError(f"{path}:{line_number}: not a finite time: {text[:40]!r}")
+    return seconds
 
 
 def groundtruth_at_frames(

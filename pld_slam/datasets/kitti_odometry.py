@@ -23,6 +23,7 @@
 """
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +85,7 @@ def _synth_metadata(folder: Path) -> dict | None:
 def _synth_frame_rate(metadata: dict, timestamps: np.ndarray) -> FrameRate:
     """``frame_rate`` [Hz] of a ``synth.json``, else the median step of the frame times."""
     rate = metadata.get("frame_rate")
-    if isinstance(rate, (int, float)) and rate > 0:
+    if isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0:
         return FrameRate(float(rate), "frame_rate of synth.json")
     return FrameRate.from_times(timestamps, "median step of times.txt")
 

@@ -54,7 +54,7 @@ EXPECTED = (
 EARTH_RADIUS = 6378137.0
 """Earth radius [m] of the devkit's Mercator projection."""
 
-_OXTS_POSE_FIELDS = 6
+_OXTS_POSE_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw")
 """lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad]: the first fields of a packet."""
 
 
@@ -94,8 +94,12 @@ def load(folder: Path) -> StereoSequence:
 
 
 def datetime_seconds(text: str) -> float:
-    """UTC seconds since the Unix epoch of ``YYYY-MM-DD hh:mm:ss.fffffffff``; ValueError if bad."""
-    nanoseconds = int(np.datetime64(text.replace(" ", "T"), "ns").astype(np.int64))
+    """UTC seconds since the Unix epoch of ``YYYY-MM-DD hh:mm:ss.fffffffff``; ValueError if bad
+    (``NaT``, numpy's not-a-time, included)."""
+    moment = np.datetime64(text.replace(" ", "T"), "ns")
+    if np.isnat(moment):
+        raise ValueError(f"not a time: {text!r}")
+    nanoseconds = int(moment.astype(np.int64))
     whole, fraction = divmod(nanoseconds, 1_000_000_000)
     return whole + fraction * 1e-9
 
@@ -139,14 +143,21 @@ def _at_image_times(T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarr
 
 
 def read_oxts_pose_fields(path: Path) -> np.ndarray:
-    """(6,) lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad] of one OXTS packet file."""
-    fields = path.read_text().split()[:_OXTS_POSE_FIELDS]
+    """(6,) lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad] of one OXTS packet file.
+
+    Raises `DatasetError` naming the file (and the field) when they are not six finite numbers.
+    """
+    fields = path.read_text().split()[: len(_OXTS_POSE_FIELDS)]
     try:
         values = np.array(fields, dtype=np.float64)
     except ValueError:
         raise DatasetError(f"{path}: OXTS packet is not numbers") from None
-    if values.size != _OXTS_POSE_FIELDS:
+    if values.size != len(_OXTS_POSE_FIELDS):
         raise DatasetError(f"{path}: OXTS packet has {values.size} fields, expected at least 6")
+    not_finite = np.flatnonzero(~np.isfinite(values))
+    if not_finite.size:
+        name, text = _OXTS_POSE_FIELDS[not_finite[0]], fields[not_finite[0]]
+        raise DatasetError(f"{path}: OXTS packet's {name} is {text!r}, not a finite number")
     return values
 
 
