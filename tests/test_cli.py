@@ -281,6 +281,27 @@ def test_a_ground_truth_pose_that_is_not_finite_stops_the_run_naming_its_file_an
     assert result.output == f"error: {poses}:3: not a finite number: 'nan'\n"
 
 
+@pytest.mark.parametrize(
+    "line_number, index, number, problem",
+    [
+        (1, 2, "nan", "cx of P0 is nan, not a finite number"),
+        (2, 3, "-inf", "tx of P1 is -inf, not a finite number"),
+        (1, 0, "inf", "fx of P0 is inf, not a finite number"),
+        (1, 2, "900", "cx of P0 is 900, outside the image (0 to its width, 160 px)"),
+        (1, 5, "-192", "fy of P0 is -192; a focal length must be positive"),
+    ],
+)
+def test_a_calibration_value_that_is_not_finite_or_implausible_stops_the_run_naming_it(
+        synthetic_sequence, tmp_path, no_frame_may_run, line_number, index, number, problem):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    row = (sequence / "calib.txt").read_text().splitlines()[line_number - 1].split()  # "P0:" then 12 numbers
+    row[1 + index] = number
+    calib = with_line(sequence, "calib.txt", line_number, " ".join(row))
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {calib}: {problem}\n"
+
+
 @pytest.fixture
 def no_frame_may_run(monkeypatch):
     """Makes processing any frame fail the test: the check must come before the first frame."""

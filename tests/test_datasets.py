@@ -469,6 +469,13 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
          "oxts/timestamps.txt: packet 1 is 60 ms from image 1, more than half a frame"),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001"), "oxts/timestamps.txt: 1 times for 3"),
         (empty("image_01/data"), "image_01/data: no .png images"),
+        (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {WIDTH} {HEIGHT}", f"R_rect_00: {numbers(np.eye(3))}",
+                 f"P_rect_00: {numbers(projection())}",
+                 f"P_rect_01: {numbers(projection(BASELINE)).replace(numbers(FY), 'nan', 1)}"),
+         "calib_cam_to_cam.txt: fy of P_rect_01 is nan, not a finite number"),
+        (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {CX - 1:g} {HEIGHT}", f"R_rect_00: {numbers(np.eye(3))}",
+                 f"P_rect_00: {numbers(projection())}", f"P_rect_01: {numbers(projection(BASELINE))}"),
+         f"calib_cam_to_cam.txt: cx of P_rect_00 is {CX:g}, outside the image (0 to its width, {CX - 1:g} px)"),
     ],
 )
 def test_kitti_raw_bad_input(tmp_path, break_it, expected):
@@ -539,6 +546,10 @@ def shift_first_timestamp(relative: str):
         (rewrite("cam0/sensor.yaml", "%YAML:1.0", "T_BS: [1, 2"), "sensor.yaml: not valid YAML"),
         (rewrite("cam1/sensor.yaml", sensor_yaml(translation(BASELINE)).replace(f"[{WIDTH},", "[64,")),
          "cam1/sensor.yaml: resolution (64, 24) differs from cam0's (32, 24)"),
+        (rewrite("cam1/sensor.yaml", sensor_yaml(translation(BASELINE)).replace(f"[{FX},", "[.nan,")),
+         "cam1/sensor.yaml: fu of intrinsics is nan, not a finite number"),
+        (rewrite("cam0/sensor.yaml", sensor_yaml(np.eye(4)).replace(f"{CY}]", f"{HEIGHT + 1.0}]")),
+         f"cam0/sensor.yaml: cy of intrinsics is {HEIGHT + 1}, outside the image (0 to its height, {HEIGHT} px)"),
     ],
 )
 def test_euroc_bad_input(tmp_path, break_it, expected):
@@ -686,6 +697,18 @@ def without(mapping: dict, dotted_key: str) -> dict:
          "'image_size' must be two positive whole numbers"),
         (rectified_calibration() | {"left": {"K": "fx fy"}}, "'left.K' is not a list of numbers"),
         (["not", "a", "mapping"], "calib.yaml: expected a YAML mapping"),
+        (rectified_calibration() | {"left": {"K": [[FX, 0.0, CX], [0.0, float("nan"), CY], [0.0, 0.0, 1.0]]}},
+         "calib.yaml: fy of left.K is nan, not a finite number"),
+        (rectified_calibration() | {"left": {"K": [[-FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]]}},
+         f"calib.yaml: fx of left.K is {-FX:g}; a focal length must be positive"),
+        (RAW_RIG | {"right": {"K": [[305.0, 0.0, 500.0], [0.0, 302.0, 126.0], [0.0, 0.0, 1.0]],
+                              "distortion": [0.0, 0.0, 0.0, 0.0]}},
+         "calib.yaml: cx of right.K is 500, outside the image (0 to its width, 320 px)"),
+        (RAW_RIG | {"R": [[1.0, 0.0, 0.0], [0.0, 1.0, float("inf")], [0.0, 0.0, 1.0]]},
+         "calib.yaml: R[1, 2] is inf, not a finite number"),
+        (rectified_calibration() | {"t": [-BASELINE, float("-inf"), 0.0]},
+         "calib.yaml: t[1] is -inf, not a finite number"),
+        (rectified_calibration() | {"fps": float("inf")}, "calib.yaml: fps is inf, not a finite number"),
     ],
 )
 def test_generic_bad_calibration(tmp_path, calibration, expected):

@@ -29,7 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
-from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
+from pld_slam.datasets.calibration import (
+    PINHOLE_ENTRIES,
+    read_kitti_calibration,
+    stereo_camera_from_projections,
+)
 from pld_slam.datasets.files import natural_sorted, paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.io.trajectory import read_kitti
@@ -54,10 +58,11 @@ def load(folder: Path) -> StereoSequence:
     timestamps = read_times(folder / "times.txt", len(left_paths))
     calibration = read_kitti_calibration(folder / "calib.txt")
     camera = stereo_camera_from_projections(
-        calibration.array("P0", (3, 4)),
-        calibration.array("P1", (3, 4)),
+        calibration.array("P0", (3, 4), PINHOLE_ENTRIES),
+        calibration.array("P1", (3, 4), PINHOLE_ENTRIES),
         *png_size(left_paths[0]),
         source=calibration.path,
+        keys=("P0", "P1"),
     )
     synth = _synth_metadata(folder)
     return StereoSequence(

@@ -35,6 +35,7 @@ import numpy as np
 
 from pld_slam.datasets.base import ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
+    PINHOLE_ENTRIES,
     Calibration,
     read_kitti_calibration,
     stereo_camera_from_projections,
@@ -75,11 +76,12 @@ def load(folder: Path) -> StereoSequence:
     cam_to_cam = read_kitti_calibration(folder.parent / "calib_cam_to_cam.txt")
     width, height = cam_to_cam.array("S_rect_00", (2,)).astype(int)
     camera = stereo_camera_from_projections(
-        cam_to_cam.array("P_rect_00", (3, 4)),
-        cam_to_cam.array("P_rect_01", (3, 4)),
+        cam_to_cam.array("P_rect_00", (3, 4), PINHOLE_ENTRIES),
+        cam_to_cam.array("P_rect_01", (3, 4), PINHOLE_ENTRIES),
         width,
         height,
         source=cam_to_cam.path,
+        keys=("P_rect_00", "P_rect_01"),
     )
     return StereoSequence(
         name=f"kitti_raw_{folder.name.removesuffix('_sync')}",
