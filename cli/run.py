@@ -6,6 +6,7 @@ from pathlib import Path
 import click
 
 from pld_slam.datasets import BagOptions, open_sequence
+from pld_slam.errors import TrackingError
 from pld_slam.io.run_output import DEFAULT_FORMATS
 from pld_slam.io.trajectory import FORMATS
 from pld_slam.report.run_files import run_and_write
@@ -127,6 +128,18 @@ def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tup
     return names
 
 
+def nothing_tracked(summary: dict) -> str | None:
+    """Why a run that tracked none of its frames failed: the first failed frame's reason and the likely
+    causes; None when it tracked a frame. Such a run's trajectory is identities, which must not pass as a result."""
+    frames = summary["frames"]
+    if frames == 0 or len(summary["tracking_failures"]) < frames:
+        return None
+    skipped = summary["skipped_frames"]
+    first = f" (frame {skipped[0]['index']}: {skipped[0]['reason']})" if skipped else ""
+    return (f"tracked none of the {frames} frames{first}; likely causes: left and right images swapped or "
+            "the same, images too dark (e.g. 12-bit data in 16-bit PNGs), or a calibration that does not fit them")
+
+
 @click.command("run")
 @click.argument("sequence_path", metavar="SEQUENCE", type=click.Path(exists=True, path_type=Path))
 @config_files_option
@@ -165,10 +178,15 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     Ctrl-C, SIGTERM or an error mid-run still writes the trajectory so far; while the run
     goes, trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run
     is killed, deleted once the final files are written). The files of an earlier run in
-    the output folder are deleted first; other files there are kept.
+    the output folder are deleted first; other files there are kept. A run that tracks
+    none of its frames writes its files, then ends with an error (exit 2) naming the
+    first failed frame and the likely causes.
     """
     sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))
     overrides = overrides if scale is None else (*overrides, f"dataset.scale={scale}")
     out = out if out is not None else Path("runs") / sequence.name
     summary = run_and_write(sequence, out, config_paths, overrides, max_frames, save_dynamic, formats)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")
+    failure = nothing_tracked(summary)
+    if failure is not None:
+        raise TrackingError(failure)

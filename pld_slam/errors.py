@@ -29,6 +29,10 @@ class TrajectoryError(PldSlamError):
     """A trajectory file cannot be read, or two trajectories cannot be compared."""
 
 
+class TrackingError(PldSlamError):
+    """A run tracked too few of its frames to be of use; the input is the likely cause (the message says which)."""
+
+
 class ConfigError(PldSlamError):
     """A configuration file or override names an unknown key or has a bad value."""
 

@@ -191,6 +191,10 @@ CALIBRATION = "vehicle_calibration_stereo_info.json"
         (edit_calibration(lambda c: c["camera_data_"].__setitem__(
             2, camera_entry("stereo_front_right_rect", T_VEHICLE_LEFT @ make_pose(np.eye(3), np.array([-0.3, 0, 0]))))),
          "puts the right camera at x = -0.3 m of the left one, not to its right"),
+        (edit_calibration(lambda c: c["camera_data_"][1]["value"].update(focal_center_x_px_=float("nan"))),
+         f"{CALIBRATION}: stereo_front_left_rect.focal_center_x_px_ is nan, not a finite number"),
+        (edit_calibration(lambda c: c["camera_data_"][1]["value"].update(focal_length_y_px_=0.0)),
+         f"{CALIBRATION}: fy of stereo_front_left_rect is 0; a focal length must be positive"),
         (lambda log: (log / CALIBRATION).write_text("{\"camera_data_\": ["), f"{CALIBRATION}: not valid JSON"),
         (move_right_image(PAIR_TOLERANCE_NS + 1),
          f"stereo_front_left_rect_{START_NS}.jpg: no image with the same timestamp (within 5 ms) in "),

@@ -27,7 +27,7 @@ from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import LABEL_WIDTH, skipped_frame_rows
+from pld_slam_cli.run import LABEL_WIDTH, nothing_tracked, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -294,6 +294,93 @@ def test_run_stops_on_left_and_right_images_that_do_not_pair_naming_the_first(sy
     assert result.exit_code == EXIT_USER_ERROR
     unpaired, other = sequence / "image_1" / "000001.png", sequence / "image_0"
     assert result.output == f"error: {unpaired}: no image with the same name in {other}\n"
+
+
+def with_line(sequence: Path, relative: str, line_number: int, text: str) -> Path:
+    """Replace line ``line_number`` (from 1) of the file ``relative`` of ``sequence`` by ``text``."""
+    path = sequence / relative
+    lines = path.read_text().splitlines()
+    lines[line_number - 1] = text
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("line_number, time", [(6, "inf"), (3, "nan")])
+def test_a_time_that_is_not_finite_stops_the_run_naming_times_txt_and_its_line(
+        synthetic_sequence, tmp_path, no_frame_may_run, line_number, time):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    times = with_line(sequence, "times.txt", line_number, time)
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {times}:{line_number}: not a finite time: {time!r}\n"
+
+
+def test_a_ground_truth_pose_that_is_not_finite_stops_the_run_naming_its_file_and_line(
+        synthetic_sequence, tmp_path, no_frame_may_run):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    poses = sequence / "poses.txt"
+    row = poses.read_text().splitlines()[2].split()
+    with_line(sequence, "poses.txt", 3, " ".join(["nan", *row[1:]]))
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {poses}:3: not a finite number: 'nan'\n"
+
+
+@pytest.mark.parametrize(
+    "line_number, index, number, problem",
+    [
+        (1, 2, "nan", "cx of P0 is nan, not a finite number"),
+        (2, 3, "-inf", "tx of P1 is -inf, not a finite number"),
+        (1, 0, "inf", "fx of P0 is inf, not a finite number"),
+        (1, 2, "900", "cx of P0 is 900, outside the image (0 to its width, 160 px)"),
+        (1, 5, "-192", "fy of P0 is -192; a focal length must be positive"),
+    ],
+)
+def test_a_calibration_value_that_is_not_finite_or_implausible_stops_the_run_naming_it(
+        synthetic_sequence, tmp_path, no_frame_may_run, line_number, index, number, problem):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    row = (sequence / "calib.txt").read_text().splitlines()[line_number - 1].split()  # "P0:" then 12 numbers
+    row[1 + index] = number
+    calib = with_line(sequence, "calib.txt", line_number, " ".join(row))
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {calib}: {problem}\n"
+
+
+def swap_left_and_right(sequence: Path) -> None:
+    """Exchange the left and right image folders of a KITTI-layout ``sequence``."""
+    (sequence / "image_0").rename(sequence / "left")
+    (sequence / "image_1").rename(sequence / "image_0")
+    (sequence / "left").rename(sequence / "image_1")
+
+
+def right_copy_of_left(sequence: Path) -> None:
+    """Make the right images of a KITTI-layout ``sequence`` copies of the left ones."""
+    shutil.rmtree(sequence / "image_1")
+    shutil.copytree(sequence / "image_0", sequence / "image_1")
+
+
+@pytest.mark.parametrize("break_it", [swap_left_and_right, right_copy_of_left])
+def test_a_run_that_tracks_no_frame_writes_its_files_and_ends_with_the_likely_causes(
+        synthetic_sequence, tmp_path, break_it):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    break_it(sequence)
+    out = tmp_path / "run"
+    result = run("run", sequence, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    error = result.output.splitlines()[-1]
+    assert error.startswith(f"error: tracked none of the 6 frames (frame 0: {sequence / 'image_0' / '000000.png'}: ")
+    assert error.endswith("; likely causes: left and right images swapped or the same, images too dark "
+                          "(e.g. 12-bit data in 16-bit PNGs), or a calibration that does not fit them")
+    assert (out / "trajectory.tum.txt").is_file() and (out / "summary.json").is_file()
+
+
+def test_a_run_fails_only_when_it_tracked_no_frame():
+    def summary(frames: int, lost: int) -> dict:
+        return {"frames": frames, "tracking_failures": list(range(lost)), "skipped_frames": []}
+
+    assert nothing_tracked(summary(6, 5)) is None and nothing_tracked(summary(0, 0)) is None
+    assert nothing_tracked(summary(6, 6)).startswith("tracked none of the 6 frames; likely causes: ")
 
 
 @pytest.fixture

@@ -90,7 +90,7 @@ def make_kitti_raw(
     write_images(folder / "image_01" / "data", names, seed=1)
     write_lines(
         folder / "image_00" / "timestamps.txt",
-        [f"2011-01-01 00:00:0{i}.100000001" for i in range(n)],
+        [f"2011-01-01 00:00:{i:02d}.100000001" for i in range(n)],
     )
     write_lines(
         date / "calib_cam_to_cam.txt",
@@ -352,6 +352,8 @@ def test_kitti_shorter_poses_cover_the_first_frames(tmp_path):
         (rewrite("times.txt", "0.0", "0.1"), "times.txt: 2 times for 3 image pairs"),
         (rewrite("times.txt", "0.0", "zero", "0.2"), "times.txt:2: not a time"),
         (rewrite("times.txt", "0.0", "0.2", "0.1"), "times.txt:3: times must increase"),
+        (rewrite("times.txt", "0.0", "0.1", "inf"), "times.txt:3: not a finite time: 'inf'"),
+        (rewrite("times.txt", "0.0", "nan", "0.2"), "times.txt:2: not a finite time: 'nan'"),
         (remove("image_1/000002.png"), "image_0/000002.png: no image with the same name in "),
         (empty("image_1"), "image_1: no .png images"),
         (lambda f: write_images(f / "dynamic_masks", ["000000.png"]), "dynamic_masks: 1 masks for 3 frames"),
@@ -456,6 +458,10 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
          "timestamps.txt: 1 times for 3 image pairs"),
         (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1", "yesterday", "2011-01-01 00:00:02"),
          "timestamps.txt:2: not a time"),
+        (rewrite("image_00/timestamps.txt", "2011-01-01 00:00:00.1", "NaT", "2011-01-01 00:00:02"),
+         "timestamps.txt:2: not a time: 'NaT'"),
+        (rewrite("oxts/data/0000000001.txt", "49.0 nan 110 0 0 0"),
+         "0000000001.txt: OXTS packet's lon is 'nan', not a finite number"),
         (remove("oxts/data/0000000002.txt"), "oxts/data: 2 OXTS packets for 3 frames"),
         (rewrite("oxts/data/0000000001.txt", "49.0 8.4"), "0000000001.txt: OXTS packet has 2 fields"),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001", "2011-01-01 00:00:01.160000001",
@@ -463,6 +469,13 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
          "oxts/timestamps.txt: packet 1 is 60 ms from image 1, more than half a frame"),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001"), "oxts/timestamps.txt: 1 times for 3"),
         (empty("image_01/data"), "image_01/data: no .png images"),
+        (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {WIDTH} {HEIGHT}", f"R_rect_00: {numbers(np.eye(3))}",
+                 f"P_rect_00: {numbers(projection())}",
+                 f"P_rect_01: {numbers(projection(BASELINE)).replace(numbers(FY), 'nan', 1)}"),
+         "calib_cam_to_cam.txt: fy of P_rect_01 is nan, not a finite number"),
+        (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {CX - 1:g} {HEIGHT}", f"R_rect_00: {numbers(np.eye(3))}",
+                 f"P_rect_00: {numbers(projection())}", f"P_rect_01: {numbers(projection(BASELINE))}"),
+         f"calib_cam_to_cam.txt: cx of P_rect_00 is {CX:g}, outside the image (0 to its width, {CX - 1:g} px)"),
     ],
 )
 def test_kitti_raw_bad_input(tmp_path, break_it, expected):
@@ -533,6 +546,10 @@ def shift_first_timestamp(relative: str):
         (rewrite("cam0/sensor.yaml", "%YAML:1.0", "T_BS: [1, 2"), "sensor.yaml: not valid YAML"),
         (rewrite("cam1/sensor.yaml", sensor_yaml(translation(BASELINE)).replace(f"[{WIDTH},", "[64,")),
          "cam1/sensor.yaml: resolution (64, 24) differs from cam0's (32, 24)"),
+        (rewrite("cam1/sensor.yaml", sensor_yaml(translation(BASELINE)).replace(f"[{FX},", "[.nan,")),
+         "cam1/sensor.yaml: fu of intrinsics is nan, not a finite number"),
+        (rewrite("cam0/sensor.yaml", sensor_yaml(np.eye(4)).replace(f"{CY}]", f"{HEIGHT + 1.0}]")),
+         f"cam0/sensor.yaml: cy of intrinsics is {HEIGHT + 1}, outside the image (0 to its height, {HEIGHT} px)"),
     ],
 )
 def test_euroc_bad_input(tmp_path, break_it, expected):
@@ -680,6 +697,18 @@ def without(mapping: dict, dotted_key: str) -> dict:
          "'image_size' must be two positive whole numbers"),
         (rectified_calibration() | {"left": {"K": "fx fy"}}, "'left.K' is not a list of numbers"),
         (["not", "a", "mapping"], "calib.yaml: expected a YAML mapping"),
+        (rectified_calibration() | {"left": {"K": [[FX, 0.0, CX], [0.0, float("nan"), CY], [0.0, 0.0, 1.0]]}},
+         "calib.yaml: fy of left.K is nan, not a finite number"),
+        (rectified_calibration() | {"left": {"K": [[-FX, 0.0, CX], [0.0, FY, CY], [0.0, 0.0, 1.0]]}},
+         f"calib.yaml: fx of left.K is {-FX:g}; a focal length must be positive"),
+        (RAW_RIG | {"right": {"K": [[305.0, 0.0, 500.0], [0.0, 302.0, 126.0], [0.0, 0.0, 1.0]],
+                              "distortion": [0.0, 0.0, 0.0, 0.0]}},
+         "calib.yaml: cx of right.K is 500, outside the image (0 to its width, 320 px)"),
+        (RAW_RIG | {"R": [[1.0, 0.0, 0.0], [0.0, 1.0, float("inf")], [0.0, 0.0, 1.0]]},
+         "calib.yaml: R[1, 2] is inf, not a finite number"),
+        (rectified_calibration() | {"t": [-BASELINE, float("-inf"), 0.0]},
+         "calib.yaml: t[1] is -inf, not a finite number"),
+        (rectified_calibration() | {"fps": float("inf")}, "calib.yaml: fps is inf, not a finite number"),
     ],
 )
 def test_generic_bad_calibration(tmp_path, calibration, expected):
@@ -746,6 +775,37 @@ def test_euroc_pairs_images_by_timestamp(tmp_path):
     assert message.endswith("cam0/data.csv")
 
 
+def unpad_names(folder: Path) -> None:
+    """Rename each file ``000012.png`` of ``folder`` to ``12.png`` (names without zero padding)."""
+    for path in folder.iterdir():
+        path.rename(path.with_name(f"{int(path.stem)}{path.suffix}"))
+
+
+@pytest.mark.parametrize(
+    "make, folders",
+    [
+        (lambda root, n: make_generic(root, rectified_calibration(), n=n), ["left", "right"]),
+        (make_kitti_odometry, ["image_0", "image_1"]),
+        (make_kitti_raw, ["image_00/data", "image_01/data", "oxts/data"]),
+    ],
+)
+def test_frames_named_without_zero_padding_are_read_in_numeric_order(tmp_path, make, folders):
+    folder = make(tmp_path, n=12)
+    for relative in folders:
+        unpad_names(folder / relative)
+    frames = open_sequence(folder).frames
+    for paths in (frames.left_paths, frames.right_paths):
+        assert [path.name for path in paths] == [f"{i}.png" for i in range(12)]
+
+
+def test_kitti_raw_oxts_packets_named_without_zero_padding_follow_the_frames(tmp_path):
+    folder = make_kitti_raw(tmp_path, n=12)
+    for relative in ("image_00/data", "image_01/data", "oxts/data"):
+        unpad_names(folder / relative)
+    forward = open_sequence(folder).groundtruth.positions[:, 2]
+    np.testing.assert_allclose(forward, np.arange(12.0), atol=1e-6)
+
+
 # ---------------------------------------------------------------- frame rate and scaling
 
 
@@ -768,6 +828,13 @@ def test_a_synthetic_sequence_takes_its_rate_from_synth_json(tmp_path):
     sequence = open_sequence(folder)
     assert (sequence.name, sequence.frame_rate.hz, sequence.frame_rate.source) == (
         "synth_static", 7.5, "frame_rate of synth.json")
+
+
+def test_a_synth_json_rate_that_is_not_finite_gives_way_to_the_median_time_step(tmp_path):
+    folder = make_kitti_odometry(tmp_path)
+    (folder / "synth.json").write_text('{"scenario": "static", "frame_rate": Infinity}')
+    rate = open_sequence(folder).frame_rate
+    assert (rate.hz, rate.source) == (pytest.approx(10.0), "median step of times.txt")
 
 
 @pytest.mark.parametrize(

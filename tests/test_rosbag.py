@@ -385,6 +385,9 @@ def test_bag_bad_input_is_one_line_naming_the_bag_and_topic(tmp_path, messages, 
         (dict(P=np.zeros((3, 4))), "/cam1/camera_info: the camera is not calibrated (P is zero)"),
         (dict(P=rectified_views()[1][3] * 1.1), "/cam1/camera_info: P differs from the left camera's"),
         (dict(size=(WIDTH, 2 * HEIGHT)), "/cam1/camera_info: 32x48 but the left camera is 32x24"),
+        (dict(R=np.diag([1.0, 1.0, np.nan])), "/cam1/camera_info: R holds nan, not a finite number"),
+        (dict(K=np.array([[FX, 0.0, 3.0 * WIDTH], [0.0, FY, CY], [0.0, 0.0, 1.0]])),
+         f"/cam1/camera_info: cx of K is {3 * WIDTH}, outside the image (0 to its width, {WIDTH} px)"),
     ],
 )
 def test_camera_info_that_cannot_describe_the_pair_is_refused(tmp_path, right_info, expected):

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
-from pld_slam.datasets.calibration import Calibration, read_json_calibration
+from pld_slam.datasets.calibration import Calibration, read_json_calibration, stereo_camera_from_projections
 from pld_slam.datasets.files import image_files, jpeg_size, nearest_within, paired_images
 from pld_slam.datasets.generic import groundtruth_in_camera
 from pld_slam.errors import DatasetError
@@ -177,15 +177,13 @@ def _stereo_camera(calibration: Calibration, size: tuple[int, int]) -> StereoCam
     def intrinsic(name: str) -> float:
         return float(calibration.array(f"{LEFT}.{name}", (1,))[0])
 
-    return StereoCamera(
-        fx=intrinsic("focal_length_x_px_"),
-        fy=intrinsic("focal_length_y_px_"),
-        cx=intrinsic("focal_center_x_px_"),
-        cy=intrinsic("focal_center_y_px_"),
-        baseline=float(np.linalg.norm(offset)),
-        width=size[0],
-        height=size[1],
-    )
+    K = np.array([
+        [intrinsic("focal_length_x_px_"), 0.0, intrinsic("focal_center_x_px_")],
+        [0.0, intrinsic("focal_length_y_px_"), intrinsic("focal_center_y_px_")],
+        [0.0, 0.0, 1.0],
+    ])
+    P_right = K @ make_pose(np.eye(3), np.array([-np.linalg.norm(offset), 0.0, 0.0]))[:3]
+    return stereo_camera_from_projections(K @ np.eye(3, 4), P_right, *size, source=calibration.path, keys=(LEFT, RIGHT))
 
 
 def _groundtruth(poses: Path, timestamps: np.ndarray, T_vehicle_cam: np.ndarray) -> Trajectory | None:

@@ -10,7 +10,11 @@ Two on-disk forms are read into the same `Calibration`:
 - JSON files (Argoverse's calibration and pose files).
 
 Every problem is a one-line `DatasetError` naming the file and, where there is one, the
-key: a missing file, a missing key, a value that is not numbers or has the wrong count.
+key: a missing file, a missing key, a value that is not numbers or has the wrong count, a
+number that is not finite (``nan``, ``inf``: named by its entry, ``cx of P0``, or its
+position, ``R[1, 2]``). The camera made of the numbers (`stereo_camera_from_projections`,
+every layout's) must be plausible too (`check_intrinsics`: positive focal lengths, the
+principal point inside the image; a right camera to the right of the left one).
 """
 
 import json
@@ -26,6 +30,10 @@ from pld_slam.errors import DatasetError
 from pld_slam.geometry.camera import StereoCamera
 
 _OPENCV_YAML_DIRECTIVE = "%YAML"
+
+PINHOLE_ENTRIES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy", (0, 3): "tx"}
+"""The entries of a (3, 3) intrinsic or (3, 4) projection matrix a camera uses, by name
+(``tx = -fx * baseline`` of a right projection), for messages."""
 
 
 @dataclass(frozen=True)
@@ -59,8 +67,10 @@ class Calibration:
             node = node[part]
         return node
 
-    def array(self, key: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
-        """The numbers of ``key`` as float64, reshaped (row-major) to ``shape``.
+    def array(
+        self, key: str, shape: tuple[int, ...] | None = None, entries: Mapping[tuple[int, ...], str] | None = None
+    ) -> np.ndarray:
+        """The numbers of ``key`` as float64, reshaped (row-major) to ``shape``; all finite.
 
         Parameters
         ----------
@@ -69,6 +79,9 @@ class Calibration:
             list or nested list (YAML).
         shape : tuple of int or None
             Expected shape; None returns the numbers flat, of any count.
+        entries : mapping of index to str, optional
+            Names of entries (e.g. `PINHOLE_ENTRIES`), for the message on a number that is
+            not finite; other entries are named by their index.
         """
         raw = self.value(key)
         try:
@@ -76,11 +89,23 @@ class Calibration:
         except (TypeError, ValueError):
             raise self.error(key, f"is not a list of numbers: {str(raw)[:60]!r}") from None
         numbers = numbers.reshape(-1)
-        if shape is None:
-            return numbers
-        if numbers.size != int(np.prod(shape)):
+        if shape is not None and numbers.size != int(np.prod(shape)):
             raise self.error(key, f"has {numbers.size} numbers, expected {int(np.prod(shape))}")
-        return numbers.reshape(shape)
+        numbers = numbers if shape is None else numbers.reshape(shape)
+        self._check_finite(key, numbers, entries or {})
+        return numbers
+
+    def _check_finite(self, key: str, numbers: np.ndarray, entries: Mapping[tuple[int, ...], str]) -> None:
+        """Raise `DatasetError` naming the first number of ``key`` that is not finite."""
+        not_finite = np.argwhere(~np.isfinite(numbers))
+        if not not_finite.size:
+            return
+        index = tuple(int(i) for i in not_finite[0])
+        if index in entries:
+            entry = f"{entries[index]} of {key}"
+        else:
+            entry = key if numbers.size == 1 else f"{key}[{', '.join(map(str, index))}]"
+        raise DatasetError(f"{self.path}: {entry} is {numbers[index]:g}, not a finite number")
 
 
 def _require_file(path: Path, what: str) -> None:
@@ -134,19 +159,58 @@ def read_json_calibration(path: Path, what: str = "JSON calibration file") -> Ca
     return Calibration(path, entries)
 
 
+def check_intrinsics(K: np.ndarray, size: tuple[int, int], source: Path | str, key: str) -> None:
+    """Raise `DatasetError` unless the pinhole intrinsics of ``K`` are plausible for ``size``.
+
+    ``fx``, ``fy``, ``cx``, ``cy`` of ``K`` (a (3, 3) intrinsic or (3, 4) projection
+    matrix) must be finite, the focal lengths positive and the principal point inside the
+    ``(width, height)`` [px] image. The message names ``source`` (the calibration) and
+    the entry of ``key`` (``cx of P0``).
+    """
+    intrinsics = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+    _require_finite(source, key, intrinsics)
+    for name in ("fx", "fy"):
+        if not intrinsics[name] > 0.0:
+            raise DatasetError(f"{source}: {name} of {key} is {intrinsics[name]:g}; a focal length must be positive")
+    for name, side, extent in (("cx", "width", size[0]), ("cy", "height", size[1])):
+        if not 0.0 <= intrinsics[name] <= extent:
+            raise DatasetError(
+                f"{source}: {name} of {key} is {intrinsics[name]:g}, outside the image (0 to its {side}, {extent} px)"
+            )
+
+
+def _require_finite(source: Path | str, key: str, values: Mapping[str, float]) -> None:
+    """Raise `DatasetError` naming the first of the named ``values`` of ``key`` that is not finite."""
+    for name, value in values.items():
+        if not np.isfinite(value):
+            raise DatasetError(f"{source}: {name} of {key} is {value:g}, not a finite number")
+
+
 def stereo_camera_from_projections(
-    P_left: np.ndarray, P_right: np.ndarray, width: int, height: int, source: Path | str
+    P_left: np.ndarray,
+    P_right: np.ndarray,
+    width: int,
+    height: int,
+    source: Path | str,
+    keys: tuple[str, str] = ("the left P", "the right P"),
 ) -> StereoCamera:
     """The rectified `StereoCamera` of the two (3, 4) projection matrices of a rectified pair.
 
     Intrinsics come from ``P_left``; the baseline [m] is
     ``(P_left[0, 3] - P_right[0, 3]) / fx`` (``P_right[0, 3] = -fx * b`` when the left
-    camera is the reference, as in KITTI and ``cv2.stereoRectify``). A baseline that is
-    not positive (the right camera is not to the right: swapped images or a sign error in
-    the calibration) raises `DatasetError` naming ``source``, the calibration file. Where
-    the two matrices have different principal points, their difference
+    camera is the reference, as in KITTI and ``cv2.stereoRectify``). Where the two
+    matrices have different principal points, their difference
     ``P_left[0, 2] - P_right[0, 2]`` is the camera's ``disparity_offset``.
+
+    Every layout makes its camera here, so the checks are made once: the intrinsics
+    (`check_intrinsics`), the ``tx`` of both and the right ``cx`` finite, and a positive
+    baseline (one that is not, the right camera not to the right, means swapped images
+    or a sign error in the calibration). Each raises `DatasetError` naming ``source``,
+    the calibration file, and ``keys``, what the two matrices are called there.
     """
+    check_intrinsics(P_left, (width, height), source, keys[0])
+    _require_finite(source, keys[0], {"tx": float(P_left[0, 3])})
+    _require_finite(source, keys[1], {"tx": float(P_right[0, 3]), "cx": float(P_right[0, 2])})
     fx = float(P_left[0, 0])
     baseline = float(P_left[0, 3] - P_right[0, 3]) / fx
     if not baseline > 0.0:

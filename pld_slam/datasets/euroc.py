@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
-from pld_slam.datasets.calibration import read_yaml_calibration
+from pld_slam.datasets.calibration import check_intrinsics, read_yaml_calibration
 from pld_slam.datasets.files import groundtruth_at_frames, paired_images
 from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
 from pld_slam.errors import DatasetError
@@ -46,6 +46,7 @@ GROUNDTRUTH_MAX_OFFSET = 0.005
 """Largest time difference [s] between a frame and its ground-truth row."""
 
 _SUPPORTED_MODELS = {"camera_model": "pinhole", "distortion_model": "radial-tangential"}
+_INTRINSICS_ENTRIES = {(0,): "fu", (1,): "fv", (2,): "cu", (3,): "cv"}
 
 
 @dataclass(frozen=True)
@@ -162,10 +163,12 @@ def read_camera_sensor(path: Path) -> CameraSensor:
     for key, supported in _SUPPORTED_MODELS.items():
         if sensor.value(key) != supported:
             raise sensor.error(key, f"is {sensor.value(key)!r}; only {supported!r} is supported")
-    fu, fv, cu, cv = sensor.array("intrinsics", (4,))
+    fu, fv, cu, cv = sensor.array("intrinsics", (4,), _INTRINSICS_ENTRIES)
     width, height = sensor.array("resolution", (2,)).astype(int)
+    K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
+    check_intrinsics(K, (int(width), int(height)), path, "intrinsics")
     return CameraSensor(
-        K=np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]]),
+        K=K,
         distortion=sensor.array("distortion_coefficients", (4,)),
         T_B_S=sensor.array("T_BS.data", (4, 4)),
         size=(int(width), int(height)),

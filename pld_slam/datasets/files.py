@@ -1,8 +1,10 @@
-"""Files shared by the dataset layouts: image listings, left/right pairing, PNG sizes,
-times files, and ground truth sampled at frame times."""
+"""Files shared by the dataset layouts: image listings in natural name order, left/right
+pairing, PNG sizes, times files, and ground truth sampled at frame times."""
 
+import math
+import re
 import struct
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Callable, Hashable, Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +18,30 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_HEADER_BYTES = 24
 
 
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name in natural order: digit runs compare as numbers, text case-insensitively.
+
+    ``"img2.png" < "img10.png"``; the name itself is the last element, so the order is
+    total (``"01.png"`` and ``"1.png"`` still sort the same way every time).
+    """
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(part) if index % 2 else part.casefold() for index, part in enumerate(parts)), name
+
+
+def natural_sorted(paths: Iterable[Path]) -> list[Path]:
+    """``paths`` in natural order of their file names (`natural_key`): ``2.png`` before ``10.png``."""
+    return sorted(paths, key=lambda path: natural_key(path.name))
+
+
 def image_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
-    """The files of ``folder`` with one of ``suffixes`` (lower case), sorted by name.
+    """The files of ``folder`` with one of ``suffixes`` (lower case), in natural name order
+    (`natural_sorted`: frames named ``0.png ... 11.png`` are read in that order).
 
     A missing folder, or one without such files, raises `DatasetError` naming it.
     """
     if not folder.is_dir():
         raise DatasetError(f"{folder}: image folder not found")
-    paths = sorted(path for path in folder.iterdir() if path.suffix.lower() in suffixes)
+    paths = natural_sorted(path for path in folder.iterdir() if path.suffix.lower() in suffixes)
     if not paths:
         raise DatasetError(f"{folder}: no {' or '.join(suffixes)} images")
     return paths
@@ -132,7 +150,8 @@ def read_times(
         numbers by default (KITTI odometry ``times.txt``).
 
     Raises `DatasetError` naming the file (and line) when it is missing, a line does not
-    parse, the count differs from ``n_frames`` or the times do not increase strictly.
+    parse or is not finite (``nan``, ``inf``), the count differs from ``n_frames`` or the
+    times do not increase strictly.
     """
     if not path.is_file():
         raise DatasetError(f"{path}: times file not found")
@@ -153,11 +172,14 @@ def read_times(
 def _parse_time(
     path: Path, line_number: int, text: str, parse_line: Callable[[str], float]
 ) -> float:
-    """The time [s] written on one line of a times file."""
+    """The time [s] written on one line of a times file; finite (``nan`` and ``inf`` raise)."""
     try:
-        return parse_line(text)
+        seconds = parse_line(text)
     except ValueError:
         raise DatasetError(f"{path}:{line_number}: not a time: {text[:40]!r}") from None
+    if not math.isfinite(seconds):
+        raise DatasetError(f"{path}:{line_number}: not a finite time: {text[:40]!r}")
+    return seconds
 
 
 def groundtruth_at_frames(

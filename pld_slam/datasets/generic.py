@@ -20,6 +20,8 @@ Folder::
     fps: 10                    # optional, default 10 (see below)
     T_gt_left: [[...], [...], [...], [...]]   # optional, default identity (see below)
 
+- Frames are in natural order of the left file names (``2.png`` before ``10.png``,
+  `pld_slam.datasets.files.natural_key`), so names need no zero padding.
 - Images are paired by file name (`pld_slam.datasets.files.paired_images`), so both
   folders must name a pair alike (``left/0001.png`` and ``right/0001.png``); a file
   without a partner of the same name raises, naming it.
@@ -32,7 +34,9 @@ Folder::
   and ``t`` are read: both images share ``left.K``, ``R`` is the identity and
   ``t = (-baseline, 0, 0)``; the other keys may be absent.
 - A right camera that is not to the right of the left one (``tx >= 0`` when rectified)
-  raises `DatasetError`: the images are swapped or ``t`` has the wrong sign.
+  raises `DatasetError`: the images are swapped or ``t`` has the wrong sign. So do a
+  number that is not finite, a focal length that is not positive and a principal point
+  outside the image (`pld_slam.datasets.calibration.check_intrinsics`), naming the value.
 - Times: ``times.txt`` when present (strictly increasing), else frame index / ``fps``
   with ``fps`` from ``calib.yaml`` (default 10 Hz, KITTI's rate), frame 0 at 0 s.
 - Frame rate: ``fps`` when given (the rig's nominal rate), else the median step of
@@ -59,7 +63,9 @@ import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
+    PINHOLE_ENTRIES,
     Calibration,
+    check_intrinsics,
     read_yaml_calibration,
     stereo_camera_from_projections,
 )
@@ -200,12 +206,12 @@ def _gt_from_left(calibration: Calibration) -> np.ndarray:
 
 def _rectified_camera(calibration: Calibration) -> StereoCamera:
     """The camera of an already rectified pair: ``left.K`` shared, right at ``-t``."""
-    K = calibration.array("left.K", (3, 3))
+    K = calibration.array("left.K", (3, 3), PINHOLE_ENTRIES)
     t = calibration.array("t", (3,))
     P_left = K @ np.eye(3, 4)
     P_right = K @ make_pose(np.eye(3), t)[:3]
     return stereo_camera_from_projections(
-        P_left, P_right, *_image_size(calibration), source=calibration.path
+        P_left, P_right, *_image_size(calibration), source=calibration.path, keys=("left.K", "t")
     )
 
 
@@ -233,15 +239,23 @@ def _check_rotation(calibration: Calibration, key: str, R: np.ndarray) -> None:
 
 def _rectification(calibration: Calibration) -> StereoRectification:
     """The `StereoRectification` of a raw rig described by ``calibration``."""
+    size = _image_size(calibration)
     return rectify_stereo(
-        calibration.array("left.K", (3, 3)),
+        _intrinsics(calibration, "left.K", size),
         _distortion(calibration, "left.distortion"),
-        calibration.array("right.K", (3, 3)),
+        _intrinsics(calibration, "right.K", size),
         _distortion(calibration, "right.distortion"),
         make_pose(_rotation(calibration, "R"), calibration.array("t", (3,))),
-        _image_size(calibration),
+        size,
         source=calibration.path,
     )
+
+
+def _intrinsics(calibration: Calibration, key: str, size: tuple[int, int]) -> np.ndarray:
+    """The (3, 3) intrinsic matrix of ``key`` of a raw camera, checked plausible for ``size`` (`check_intrinsics`)."""
+    K = calibration.array(key, (3, 3), PINHOLE_ENTRIES)
+    check_intrinsics(K, size, calibration.path, key)
+    return K
 
 
 def read_groundtruth(path: Path, timestamps: np.ndarray, T_gt_rect: np.ndarray) -> Trajectory | None:

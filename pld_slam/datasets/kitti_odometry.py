@@ -18,18 +18,23 @@
   folder (the shared extract holds the first 51 frames). Fewer rows give ground truth for
   the first frames only. The first ground-truth pose is moved to identity.
 - Dynamic masks (optional, synthetic sequences): ``dynamic_masks/*.png``, one per frame
-  in file-name order; a different count raises, as a half-written mask folder would
-  silently corrupt the dynamic-feature metrics.
+  in natural file-name order (as the images); a different count raises, as a
+  half-written mask folder would silently corrupt the dynamic-feature metrics.
 """
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
-from pld_slam.datasets.calibration import read_kitti_calibration, stereo_camera_from_projections
-from pld_slam.datasets.files import paired_image_folders, png_size, read_times
+from pld_slam.datasets.calibration import (
+    PINHOLE_ENTRIES,
+    read_kitti_calibration,
+    stereo_camera_from_projections,
+)
+from pld_slam.datasets.files import natural_sorted, paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.trajectory import Trajectory
@@ -53,10 +58,11 @@ def load(folder: Path) -> StereoSequence:
     timestamps = read_times(folder / "times.txt", len(left_paths))
     calibration = read_kitti_calibration(folder / "calib.txt")
     camera = stereo_camera_from_projections(
-        calibration.array("P0", (3, 4)),
-        calibration.array("P1", (3, 4)),
+        calibration.array("P0", (3, 4), PINHOLE_ENTRIES),
+        calibration.array("P1", (3, 4), PINHOLE_ENTRIES),
         *png_size(left_paths[0]),
         source=calibration.path,
+        keys=("P0", "P1"),
     )
     synth = _synth_metadata(folder)
     return StereoSequence(
@@ -84,7 +90,7 @@ def _synth_metadata(folder: Path) -> dict | None:
 def _synth_frame_rate(metadata: dict, timestamps: np.ndarray) -> FrameRate:
     """``frame_rate`` [Hz] of a ``synth.json``, else the median step of the frame times."""
     rate = metadata.get("frame_rate")
-    if isinstance(rate, (int, float)) and rate > 0:
+    if isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0:
         return FrameRate(float(rate), "frame_rate of synth.json")
     return FrameRate.from_times(timestamps, "median step of times.txt")
 
@@ -108,11 +114,11 @@ def _groundtruth(folder: Path, timestamps: np.ndarray) -> Trajectory | None:
 
 
 def _dynamic_mask_paths(folder: Path, n_frames: int) -> list[Path] | None:
-    """``dynamic_masks/*.png`` sorted by name, one per frame, or None without the folder."""
+    """``dynamic_masks/*.png`` in natural name order (as the images), one per frame, or None without the folder."""
     mask_folder = folder / "dynamic_masks"
     if not mask_folder.is_dir():
         return None
-    paths = sorted(mask_folder.glob("*.png"))
+    paths = natural_sorted(mask_folder.glob("*.png"))
     if len(paths) != n_frames:
         raise DatasetError(f"{mask_folder}: {len(paths)} masks for {n_frames} frames")
     return paths

@@ -9,8 +9,9 @@
   added once in float64, which keeps them to float64's resolution (about 0.2 us).
 - Camera: ``P_rect_00`` and ``P_rect_01`` of ``calib_cam_to_cam.txt`` one folder up
   (``S_rect_00`` gives the image size).
-- Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame, turned into poses
-  as the KITTI raw devkit's ``convertOxtsToPose`` does (Mercator projection scaled by the
+- Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame (in natural name
+  order, as the images), turned into poses as the KITTI raw devkit's
+  ``convertOxtsToPose`` does (Mercator projection scaled by the
   first latitude, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), then moved from the IMU to the
   rectified left camera with ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu``
   (``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``):
@@ -34,11 +35,12 @@ import numpy as np
 
 from pld_slam.datasets.base import ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
+    PINHOLE_ENTRIES,
     Calibration,
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import paired_image_folders, read_times
+from pld_slam.datasets.files import natural_sorted, paired_image_folders, read_times
 from pld_slam.datasets.kitti_odometry import FRAME_RATE
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import interpolate_poses, inverse, make_pose
@@ -53,7 +55,7 @@ EXPECTED = (
 EARTH_RADIUS = 6378137.0
 """Earth radius [m] of the devkit's Mercator projection."""
 
-_OXTS_POSE_FIELDS = 6
+_OXTS_POSE_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw")
 """lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad]: the first fields of a packet."""
 
 
@@ -74,11 +76,12 @@ def load(folder: Path) -> StereoSequence:
     cam_to_cam = read_kitti_calibration(folder.parent / "calib_cam_to_cam.txt")
     width, height = cam_to_cam.array("S_rect_00", (2,)).astype(int)
     camera = stereo_camera_from_projections(
-        cam_to_cam.array("P_rect_00", (3, 4)),
-        cam_to_cam.array("P_rect_01", (3, 4)),
+        cam_to_cam.array("P_rect_00", (3, 4), PINHOLE_ENTRIES),
+        cam_to_cam.array("P_rect_01", (3, 4), PINHOLE_ENTRIES),
         width,
         height,
         source=cam_to_cam.path,
+        keys=("P_rect_00", "P_rect_01"),
     )
     return StereoSequence(
         name=f"kitti_raw_{folder.name.removesuffix('_sync')}",
@@ -93,8 +96,12 @@ def load(folder: Path) -> StereoSequence:
 
 
 def datetime_seconds(text: str) -> float:
-    """UTC seconds since the Unix epoch of ``YYYY-MM-DD hh:mm:ss.fffffffff``; ValueError if bad."""
-    nanoseconds = int(np.datetime64(text.replace(" ", "T"), "ns").astype(np.int64))
+    """UTC seconds since the Unix epoch of ``YYYY-MM-DD hh:mm:ss.fffffffff``; ValueError if bad
+    (``NaT``, numpy's not-a-time, included)."""
+    moment = np.datetime64(text.replace(" ", "T"), "ns")
+    if np.isnat(moment):
+        raise ValueError(f"not a time: {text!r}")
+    nanoseconds = int(moment.astype(np.int64))
     whole, fraction = divmod(nanoseconds, 1_000_000_000)
     return whole + fraction * 1e-9
 
@@ -106,7 +113,7 @@ def _groundtruth(
     oxts_folder = folder / "oxts" / "data"
     if not oxts_folder.is_dir():
         return None
-    packet_paths = sorted(oxts_folder.glob("*.txt"))
+    packet_paths = natural_sorted(oxts_folder.glob("*.txt"))
     if len(packet_paths) != len(timestamps):
         raise DatasetError(
             f"{oxts_folder}: {len(packet_paths)} OXTS packets for {len(timestamps)} frames"
@@ -138,14 +145,21 @@ def _at_image_times(T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarr
 
 
 def read_oxts_pose_fields(path: Path) -> np.ndarray:
-    """(6,) lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad] of one OXTS packet file."""
-    fields = path.read_text().split()[:_OXTS_POSE_FIELDS]
+    """(6,) lat [deg], lon [deg], alt [m], roll, pitch, yaw [rad] of one OXTS packet file.
+
+    Raises `DatasetError` naming the file (and the field) when they are not six finite numbers.
+    """
+    fields = path.read_text().split()[: len(_OXTS_POSE_FIELDS)]
     try:
         values = np.array(fields, dtype=np.float64)
     except ValueError:
         raise DatasetError(f"{path}: OXTS packet is not numbers") from None
-    if values.size != _OXTS_POSE_FIELDS:
+    if values.size != len(_OXTS_POSE_FIELDS):
         raise DatasetError(f"{path}: OXTS packet has {values.size} fields, expected at least 6")
+    not_finite = np.flatnonzero(~np.isfinite(values))
+    if not_finite.size:
+        name, text = _OXTS_POSE_FIELDS[not_finite[0]], fields[not_finite[0]]
+        raise DatasetError(f"{path}: OXTS packet's {name} is {text!r}, not a finite number")
     return values
 
 

@@ -56,7 +56,7 @@ from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from pld_slam.datasets.base import FrameRate, StereoSequence, check_calibrated_size, decode_grey
-from pld_slam.datasets.calibration import stereo_camera_from_projections
+from pld_slam.datasets.calibration import check_intrinsics, stereo_camera_from_projections
 from pld_slam.datasets.files import nearest_within
 from pld_slam.datasets.generic import RigCalibration, groundtruth_in_camera, read_rig_calibration
 from pld_slam.datasets.rectify import RectifiedView, rectification_of
@@ -396,6 +396,8 @@ def _camera_info_rig(reader: AnyReader, bag: Path, topics: tuple[str, str]) -> R
     if _is_rectified_topic(topics[0]):
         camera = stereo_camera_from_projections(views[0].P, views[1].P, *size, source=left_source)
         return RigCalibration(camera, None, T_left_rect, None)
+    for view, source in zip(views, (left_source, right_source), strict=True):
+        check_intrinsics(view.K, size, source, "K")
     rectifier = rectification_of(*views, size, left_source)
     return RigCalibration(rectifier.camera, rectifier, T_left_rect, None)
 
@@ -422,6 +424,9 @@ def _rectified_view(info, source: str) -> RectifiedView:
                            f"({' or '.join(_SUPPORTED_DISTORTION_MODELS)})")
     view = RectifiedView(field("k").reshape(3, 3), distortion if distortion.size else np.zeros(5),
                          field("r").reshape(3, 3), field("p").reshape(3, 4))
+    for name, values in (("K", view.K), ("D", view.distortion), ("R", view.R), ("P", view.P)):
+        if not np.isfinite(values).all():
+            raise DatasetError(f"{source}: {name} holds {values[~np.isfinite(values)][0]:g}, not a finite number")
     if not view.P[0, 0] > 0.0:
         raise DatasetError(f"{source}: the camera is not calibrated (P is zero); give the calibration with --calib")
     return view

@@ -68,6 +68,7 @@ import numpy as np
 
 from pld_slam.config import Config, GgsConfig, PointsConfig
 from pld_slam.datasets.base import read_grey
+from pld_slam.datasets.files import natural_sorted
 from pld_slam.errors import DatasetError, PldSlamError
 from pld_slam.frontend.ggs import GgsDatabase, ggs_and_place_descriptors, ggs_distances
 from pld_slam.frontend.points import detect_image_points
@@ -86,16 +87,6 @@ VOCABULARY_HINT = "build one with `pld-slam vocabulary build IMAGE_DIR... --out 
 # --- the images --------------------------------------------------------------------------
 
 
-def natural_key(name: str) -> tuple:
-    """Sort key of a file name in natural order: digit runs compare as numbers, text case-insensitively.
-
-    ``"img2.png" < "img10.png"``; the name itself is the last element, so the order is
-    total (``"01.png"`` and ``"1.png"`` still sort the same way every time).
-    """
-    parts = re.split(r"(\d+)", name)
-    return tuple(int(part) if index % 2 else part.casefold() for index, part in enumerate(parts)), name
-
-
 def natural_sorted_images(folder: Path) -> list[Path]:
     """The image files directly in ``folder``, in natural order of their names (module docstring).
 
@@ -110,7 +101,7 @@ def natural_sorted_images(folder: Path) -> list[Path]:
     ]
     if not paths:
         raise DatasetError(f"{folder}: no images ({', '.join(ext[1:] for ext in IMAGE_EXTENSIONS)})")
-    return sorted(paths, key=lambda path: natural_key(path.name))
+    return natural_sorted(paths)
 
 
 def read_images(paths: Iterable[Path]) -> Iterator[np.ndarray]:
