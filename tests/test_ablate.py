@@ -12,6 +12,7 @@ from types import SimpleNamespace
 
 import pytest
 from click.testing import CliRunner
+from evo.tools import file_interface
 from processes import ends_within
 
 from pld_slam.config import load_config
@@ -113,6 +114,10 @@ def test_a_rerun_reuses_finished_cells_and_redoes_an_unfinished_one(tiny, tmp_pa
     rows = recorded_rows(tmp_path)
     assert [(r["variant"], r["status"]) for r in rows] == [("lines", "ok"), ("points", "ok")]
     assert rows[0]["frames"] == 8 and rows[0]["ate_rmse_m"] < 0.1
+    for spec, row in zip(cells, rows, strict=True):  # each cell's evo result, what evo_res compares
+        saved = file_interface.load_res_file(cell_dir(tmp_path, spec) / "ate.zip")
+        assert saved.stats["rmse"] == pytest.approx(row["ate_rmse_m"], rel=1e-6)  # from the TUM file
+        assert saved.info["est_name"] == f"{spec.sequence}_{spec.variant}"
     (cell_dir(tmp_path, cells[1]) / "cell.json").unlink()  # as if killed during this cell
     finished_at = (cell_dir(tmp_path, cells[0]) / "cell.json").stat().st_mtime_ns
     again = prepare_ablation(tmp_path, [tiny], TWO_VARIANTS)

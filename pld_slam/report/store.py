@@ -5,6 +5,7 @@ Layout::
     OUT/ablation.json                  the suite, its variants and sequences in table order
     OUT/groundtruth/SEQUENCE.tum.txt   each sequence's ground truth (for the plots)
     OUT/cells/SEQUENCE/VARIANT/        the run's files (trajectories, summary.json, ...)
+                              ate.zip    evo's result file of its ATE (``evo_res OUT/cells/*/*/ate.zip``)
                               cell.json  the cell's row, written last
 
 ``cell.json`` is written after the run's files, by a rename, so a cell with one is
@@ -20,11 +21,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pld_slam.errors import PldSlamError
-from pld_slam.io.trajectory import write_tum
+from pld_slam.eval.metrics import ate_result
+from pld_slam.io.evo_results import write_evo_result
+from pld_slam.io.run_output import TRAJECTORY_TUM
+from pld_slam.io.trajectory import read_tum, write_tum
 from pld_slam.report.cells import CellOutcome, CellSpec
 from pld_slam.report.suite import Suite
 
 CELL_FILE = "cell.json"
+ATE_RESULT = "ate.zip"
 ABLATION_FILE = "ablation.json"
 
 ROW_COLUMNS = (
@@ -75,11 +80,22 @@ def record_cell(out: Path, spec: CellSpec, outcome: CellOutcome) -> dict:
     for name, content in outcome.files.items():
         (folder / name).write_bytes(content)
     summary = json.loads(outcome.files["summary.json"]) if "summary.json" in outcome.files else None
+    if summary is not None and summary["ate_rmse_m"] is not None:
+        write_ate_result(out, spec, folder)
     row = cell_row(spec, outcome, summary)
     scratch = folder / (CELL_FILE + ".part")
     scratch.write_text(json.dumps(row, indent=2) + "\n")
     scratch.replace(folder / CELL_FILE)
     return row
+
+
+def write_ate_result(out: Path, spec: CellSpec, folder: Path) -> None:
+    """evo's result file of the cell's ATE, ``ate.zip`` in its ``folder``: its ``trajectory.tum.txt``
+    against the sequence's kept ground truth, as the run's summary measured it, named
+    ``SEQUENCE_VARIANT`` (the name ``evo_res`` shows)."""
+    result = ate_result(read_tum(groundtruth_path(out, spec.sequence)), read_tum(folder / TRAJECTORY_TUM),
+                        f"{folder_name(spec.sequence)}_{folder_name(spec.variant)}")
+    write_evo_result(folder / ATE_RESULT, result)
 
 
 def cell_row(spec: CellSpec, outcome: CellOutcome, summary: dict | None) -> dict:
