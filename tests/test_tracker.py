@@ -163,10 +163,10 @@ def test_tracking_recovers_after_a_frame_without_features(sequence, features, de
 def test_a_skipped_frame_keeps_the_reference_so_the_next_frame_is_tracked(sequence, features):
     tracker = Tracker(sequence.camera, load_config())
     before = [tracker.track(f) for f in features[:FAILED]]
-    assert tracker._prior_trusted  # the last frame was tracked normally
+    assert tracker.motion_model.trusted  # the last frame was tracked normally
     skipped = tracker.skip()
     # the next frame is two frames' motion from the last tracked one: the model is no longer trusted
-    assert not tracker._prior_trusted
+    assert not tracker.motion_model.trusted
     after = [tracker.track(f) for f in features[FAILED + 1 :]]
     assert skipped.status is TrackingStatus.LOST
     expected = nearest_pose(before[-1].T_w_c @ inverse(before[-1].T_c_p))

@@ -60,7 +60,7 @@ from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.frontend.ggs import ggs_distance
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
+from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
@@ -84,11 +84,12 @@ from pld_slam.tracking.local_map import (
     gather_local_map,
     track_local_map,
 )
+from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.relocalisation import keyframes_by_similarity
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
-from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
+from pld_slam.tracking.static_world import static_world_solution
 
 
 class TrackingStatus(enum.Enum):
@@ -215,9 +216,7 @@ class Tracker:
         self._reference_inliers = 0
         self._seen_dynamic_points = np.zeros(0, dtype=bool)
         self._seen_dynamic_lines = np.zeros(0, dtype=bool)
-        self._T_w_p = np.eye(4)
-        self._velocity = np.eye(4)
-        self._prior_trusted = False
+        self._motion = MotionModel()
 
     def track(
         self,
@@ -239,7 +238,7 @@ class Tracker:
         if self._reference is None:
             return self._first_frame(features, moving_mask)
         clock = StageClock()
-        T_c_r_predicted = self._predicted_T_c_w() @ self._T_w_r
+        T_c_r_predicted = self._motion.predicted_T_c_w() @ self._T_w_r
         matched, widened = self._match(self._reference, features, T_c_r_predicted)
         clock.lap("matching")
         kept = self._filter(self._reference, features, matched)
@@ -273,7 +272,7 @@ class Tracker:
         min_inliers = self._config.tracking.min_inliers
         tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
         tracked_by_reference = tracked
-        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._predicted_T_w_c()
+        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._motion.predicted_T_w_c()
         map_tracking = None
         recovered = False
         if self._local_map is not None:
@@ -301,14 +300,14 @@ class Tracker:
                 map_point_inliers=int(np.count_nonzero(map_tracking.point_ids >= 0)),
                 map_line_inliers=int(np.count_nonzero(map_tracking.line_ids >= 0)),
             )
-        T_w_c, T_c_p = self._advance(T_w_c)
+        T_w_c, T_c_p = self._motion.advance(T_w_c)
         landmarks = (
             _LandmarkIds.none(features) if map_tracking is None
             else _LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
         )
         self._update_reference(features, T_w_c, tracked, counts, kept, labels, landmarks, renew=recovered)
         status = _status(tracked, recovered)
-        self._prior_trusted = status is TrackingStatus.TRACKED
+        self._motion.trusted = status is TrackingStatus.TRACKED
         keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
         from_reference = tracked_by_reference and status is TrackingStatus.TRACKED
         rejected = _rejected_features(features, kept, solution, labels, from_reference)
@@ -354,17 +353,9 @@ class Tracker:
         """How far the local map's pose lies from the motion model's prediction, in units of the model's
         expected error (`static_world.motion_model_distance`); None when the model is not trusted (the
         last frame not tracked normally, or this frame's guided search widened) or the map gave no pose."""
-        if widened or not self._prior_trusted or not self._map_tracked(map_tracking):
+        if widened or not self._motion.trusted or not self._map_tracked(map_tracking):
             return None
-        return motion_model_distance(map_tracking.solution.T_c_w, self._predicted_T_c_w(), self._config)
-
-    def _predicted_T_w_c(self) -> np.ndarray:
-        """The motion model's pose (4, 4) of the frame after the previous one, camera to world."""
-        return self._T_w_p @ inverse(self._velocity)
-
-    def _predicted_T_c_w(self) -> np.ndarray:
-        """The same pose, world to camera (4, 4)."""
-        return self._velocity @ inverse(self._T_w_p)
+        return self._motion.distance(map_tracking.solution.T_c_w, self._config)
 
     def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
         """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
@@ -472,6 +463,11 @@ class Tracker:
         return np.where(live, ids, -1)
 
     @property
+    def motion_model(self) -> MotionModel:
+        """The constant-velocity model that predicts the next frame (trusted after a frame tracked normally)."""
+        return self._motion
+
+    @property
     def reference_keyframe_id(self) -> int | None:
         """The keyframe whose local map the next frame is tracked against (None before the first)."""
         return None if self._reference_keyframe is None else self._reference_keyframe.id
@@ -485,7 +481,7 @@ class Tracker:
         self._reference_keyframe = keyframe
         self._frames_since_keyframe = 0
         self._local_map = gather_local_map(self._map, keyframe.id, self._config.mapping.tracking_keyframes)
-        self._T_w_p = keyframe.T_w_c
+        self._motion.T_w_p = keyframe.T_w_c
         dynamic = _DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
         landmarks = _LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
         self._set_reference(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
@@ -501,16 +497,6 @@ class Tracker:
             tracked_landmarks=map_tracking.tracked_landmarks,
             reference_landmarks=_established_landmarks(self._map, keyframe),
         ))
-
-    def _advance(self, T_w_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The frame's ``T_w_c`` (re-projected onto SE(3)) and the motion ``T_c_p`` from the last frame.
-
-        Both become the tracker's state: the last pose and the motion model.
-        """
-        T_w_c = nearest_pose(T_w_c)
-        T_c_p = nearest_pose(inverse(T_w_c) @ self._T_w_p)
-        self._velocity, self._T_w_p = T_c_p, T_w_c
-        return T_w_c, T_c_p
 
     def _update_reference(
         self,
@@ -548,9 +534,7 @@ class Tracker:
         The reference stays, so the next frame is matched against it as usual; the motion
         model is not trusted for it (module docstring: only after a frame tracked normally).
         """
-        self._prior_trusted = False
-        self._T_w_p = nearest_pose(self._predicted_T_w_c())
-        return TrackedFrame(self._T_w_p.copy(), self._velocity, TrackingStatus.LOST)
+        return TrackedFrame(self._motion.coast().copy(), self._motion.velocity, TrackingStatus.LOST)
 
     def _set_reference(
         self,
@@ -683,7 +667,7 @@ class Tracker:
         moving = np.zeros(len(points.sigma_px), dtype=bool)
         if solution.success and self._detectors_on:
             static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
-                                           self._prior_trusted and not widened, self._pose_options, self._config)
+                                           self._motion.trusted and not widened, self._pose_options, self._config)
             solution, moving = static.solution, static.moving
         labels = self._label_dynamic(self._reference, features, kept, solution)
         return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | moving)
