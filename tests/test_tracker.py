@@ -18,8 +18,11 @@ from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.frontend import StereoFeatures, StereoLines, StereoPoints, extract_stereo_features
 from pld_slam.geometry.se3 import inverse, nearest_pose
+from pld_slam.matching.frames import FrameMatches
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
+from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.reference import DynamicIndices, FeatureMatches, ReferenceFrame, can_be_reference
 from pld_slam.tracking.tracker import Tracker, TrackingStatus
 
 N_FRAMES = 15
@@ -182,3 +185,66 @@ def test_the_frame_after_a_featureless_frame_is_tracked(sequence, features):
     tracked = track_all(sequence, frames)
     assert tracked[FAILED].status is TrackingStatus.LOST
     assert tracked[FAILED + 1].status is TrackingStatus.TRACKED
+
+
+# --- the reference frame --------------------------------------------------------------
+
+
+def matches_of(points: list[int], lines: list[int]) -> FeatureMatches:
+    """Reference features ``points`` / ``lines`` matched to the same indices of the current frame."""
+    points, lines = np.array(points, dtype=np.int64), np.array(lines, dtype=np.int64)
+    return FeatureMatches(FrameMatches(points, points), FrameMatches(lines, lines))
+
+
+def test_a_new_reference_knows_its_dynamic_stereo_features_and_no_landmarks(features):
+    frame = features[0]
+    n_stereo = len(frame.points)
+    assert len(frame.keypoints) > n_stereo  # some keypoints without a stereo match: not reference points
+    reference = ReferenceFrame(frame, np.eye(4), DynamicIndices(np.array([2, n_stereo]), np.array([1])))
+    assert np.flatnonzero(reference.seen_dynamic_points).tolist() == [2]
+    assert np.flatnonzero(reference.seen_dynamic_lines).tolist() == [1]
+    assert (reference.landmarks.points == -1).all() and len(reference.landmarks.points) == n_stereo
+    assert reference.age == 0 and reference.first_inliers == 0
+
+
+def test_the_reference_remembers_what_later_frames_found_dynamic(features):
+    reference = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    labels = DynamicLabels(np.zeros((3, 2)), np.array([False, True, True]), np.zeros((2, 4)), np.array([True, False]))
+    reference.record(matches_of([4, 5, 6], [7, 8]), labels, inliers=50)
+    assert np.flatnonzero(reference.seen_dynamic_points).tolist() == [5, 6]
+    assert np.flatnonzero(reference.seen_dynamic_lines).tolist() == [7]
+    assert reference.age == 1 and reference.first_inliers == 50
+
+
+def test_the_reference_wears_out_with_age_and_with_lost_inliers(features):
+    config = load_config(overrides=("tracking.reference_max_age=3", "tracking.reference_min_inlier_ratio=0.5"))
+    nothing = DynamicLabels.none(np.zeros((0, 2)), np.zeros((0, 4)))
+    reference = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    worn = []
+    for _ in range(3):
+        reference.record(matches_of([], []), nothing, inliers=100)
+        worn.append(reference.is_worn(100, config))
+    assert worn == [False, False, True]
+    young = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    young.record(matches_of([], []), nothing, inliers=100)  # the first frame sets the inliers to keep
+    young.record(matches_of([], []), nothing, inliers=10)
+    assert not young.is_worn(50, config) and young.is_worn(49, config)
+
+
+def test_a_frame_can_be_a_reference_with_twice_min_inliers_features(sequence, features):
+    config = load_config()
+    assert can_be_reference(features[0], config)
+    assert not can_be_reference(no_features(), config)
+    tracker = Tracker(sequence.camera, config)
+    assert tracker.can_be_reference(features[0]) and not tracker.can_be_reference(no_features())
+
+
+def test_the_tracker_renews_its_reference_every_max_age_frames(sequence, features):
+    tracker = Tracker(sequence.camera, load_config(overrides=("tracking.reference_max_age=3",)))
+    assert tracker.reference is None
+    references = []
+    for frame in features[:8]:
+        tracker.track(frame)
+        references.append(next(k for k, f in enumerate(features) if f is tracker.reference.features))
+    assert references == [0, 0, 0, 3, 3, 3, 6, 6]
+    assert tracker.reference.age == 1

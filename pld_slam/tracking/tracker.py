@@ -12,15 +12,8 @@ tracked against the local map (`local_map`), whose pose is the frame's, and the 
 decides whether the frame becomes a keyframe (`pld_slam.keyframes`). The tracker reads
 the map and never changes it: what it saw goes back to local mapping in `TrackedFrame`.
 
-Reference frame. The paper tracks the previous frame and then the local map. We track a
-reference frame a few frames back, renewed (the current frame becomes the reference)
-after ``tracking.reference_max_age`` frames, when the inliers fall below
-``tracking.reference_min_inlier_ratio`` of those of the reference's first tracked frame,
-and with a map at every keyframe (`use_keyframe`), whose BA-corrected pose it takes.
-Adjacent frames are too close for a moving object to stand out: on KITTI raw 0005 a
-near van moves ~0.08 m per frame against the scene, which a frame-to-frame solve
-absorbed as ego-motion (ATE 0.37 m); over several frames its disagreement grows past the
-inlier thresholds, and the dynamic detectors see it.
+Reference frame (`reference`): a frame a few frames back, renewed when worn, after a
+failure, after a recovered pose, and with a map at every keyframe (`use_keyframe`).
 
 Tracking failure. The paper does not say what happens when a frame cannot be tracked.
 With a map, a frame whose guided search had to widen its window (the prediction was
@@ -63,7 +56,6 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
 from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
 from pld_slam.matching.observations import line_observations, point_observations
@@ -87,6 +79,7 @@ from pld_slam.tracking.local_map import (
 from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
+from pld_slam.tracking.reference import DynamicIndices, FeatureMatches, LandmarkIds, ReferenceFrame, can_be_reference
 from pld_slam.tracking.relocalisation import keyframes_by_similarity
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
 from pld_slam.tracking.static_world import static_world_solution
@@ -162,38 +155,6 @@ class TrackedFrame:
     line_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
-@dataclass(frozen=True)
-class _FrameMatches:
-    points: FrameMatches
-    lines: FrameMatches
-
-
-@dataclass(frozen=True)
-class _LandmarkIds:
-    """The map landmark of each of a frame's stereo points (P,) and lines (L,), ``-1`` for none."""
-
-    points: np.ndarray
-    lines: np.ndarray
-
-    @classmethod
-    def none(cls, features: StereoFeatures) -> "_LandmarkIds":
-        """No landmark for any stereo point or line of ``features``."""
-        return cls(np.full(len(features.points), -1), np.full(len(features.lines), -1))
-
-    @classmethod
-    def of(cls, features: StereoFeatures, point_ids: np.ndarray, line_ids: np.ndarray) -> "_LandmarkIds":
-        """From ids over all left keypoints (P_all,), stereo points first, and over the lines (L,)."""
-        return cls(point_ids[: len(features.points)].copy(), line_ids.copy())
-
-
-@dataclass(frozen=True)
-class _DynamicIndices:
-    """Indices of a frame's points (P,) and lines (L,) found dynamic."""
-
-    points: np.ndarray
-    lines: np.ndarray
-
-
 class Tracker:
     """Stereo point-line tracking against a reference frame and, given a map, its local map."""
 
@@ -209,13 +170,7 @@ class Tracker:
             use_line_vertical=config.lines.vertical_error,
             use_line_horizontal=config.lines.horizontal_error,
         )
-        self._reference: StereoFeatures | None = None
-        self._reference_landmarks: _LandmarkIds | None = None
-        self._T_w_r = np.eye(4)
-        self._reference_age = 0
-        self._reference_inliers = 0
-        self._seen_dynamic_points = np.zeros(0, dtype=bool)
-        self._seen_dynamic_lines = np.zeros(0, dtype=bool)
+        self._reference: ReferenceFrame | None = None
         self._motion = MotionModel()
 
     def track(
@@ -238,12 +193,12 @@ class Tracker:
         if self._reference is None:
             return self._first_frame(features, moving_mask)
         clock = StageClock()
-        T_c_r_predicted = self._motion.predicted_T_c_w() @ self._T_w_r
-        matched, widened = self._match(self._reference, features, T_c_r_predicted)
+        T_c_r_predicted = self._motion.predicted_T_c_w() @ self._reference.T_w_r
+        reference = self._reference.features
+        matched, widened = self._match(reference, features, T_c_r_predicted)
         clock.lap("matching")
-        kept = self._filter(self._reference, features, matched)
+        kept = self._filter(reference, features, matched)
         clock.lap("filters")
-        reference = self._reference
         points = point_observations(
             reference.points.points_c[kept.points.previous], features.points, kept.points.current,
             self._config.points,
@@ -272,13 +227,13 @@ class Tracker:
         min_inliers = self._config.tracking.min_inliers
         tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
         tracked_by_reference = tracked
-        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._motion.predicted_T_w_c()
+        T_w_c = self._reference.T_w_r @ inverse(solution.T_c_w) if tracked else self._motion.predicted_T_w_c()
         map_tracking = None
         recovered = False
         if self._local_map is not None:
             map_tracking = track_local_map(
                 self._camera, inverse(T_w_c), self._local_map, features, point_dynamic, line_dynamic,
-                self._config, self._pose_options, self._reference_matches(kept, solution, labels),
+                self._config, self._pose_options, self._reference.map_matches(kept, solution, labels, self._map),
                 check_static_world=moving_mask is None and self._detectors_on and tracked and not widened,
             )
             suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
@@ -302,8 +257,8 @@ class Tracker:
             )
         T_w_c, T_c_p = self._motion.advance(T_w_c)
         landmarks = (
-            _LandmarkIds.none(features) if map_tracking is None
-            else _LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
+            LandmarkIds.none(features) if map_tracking is None
+            else LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
         )
         self._update_reference(features, T_w_c, tracked, counts, kept, labels, landmarks, renew=recovered)
         status = _status(tracked, recovered)
@@ -327,8 +282,8 @@ class Tracker:
             line_dynamic = np.zeros(len(features.lines), dtype=bool)
         else:
             point_dynamic, line_dynamic = features_on_mask(features.keypoints.uv, features.lines.endpoints, moving_mask)
-        self._set_reference(features, np.eye(4), _DynamicIndices(np.flatnonzero(point_dynamic),
-                                                                 np.flatnonzero(line_dynamic)))
+        dynamic = DynamicIndices(np.flatnonzero(point_dynamic), np.flatnonzero(line_dynamic))
+        self._reference = ReferenceFrame(features, np.eye(4), dynamic)
         first_keyframe = KeyframeReason.FIRST if self._map is not None else None
         return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
                             point_dynamic=point_dynamic, line_dynamic=line_dynamic,
@@ -421,46 +376,10 @@ class Tracker:
             self._local_map = local_map
             self._reference_keyframe = self._map.keyframes[local_map.keyframes[0]]
 
-    def _reference_matches(
-        self, kept: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels
-    ) -> ReferenceMatches:
-        """The inlier, static matches of the reference solve, the reference side in the world frame.
-
-        A reference feature that observes a live landmark passes it on (`ReferenceMatches`):
-        its world side is the landmark's position.
-        """
-        if not solution.success:
-            return ReferenceMatches.empty()
-        reference = self._reference
-        points = solution.inliers.points & ~labels.point_dynamic
-        lines = solution.inliers.lines & ~labels.line_dynamic
-        previous_points, previous_lines = kept.points.previous[points], kept.lines.previous[lines]
-        segments = reference.lines.endpoints_c[previous_lines].reshape(-1, 3)
-        points_w = transform_points(self._T_w_r, reference.points.points_c[previous_points])
-        lines_w = transform_points(self._T_w_r, segments).reshape(-1, 2, 3)
-        point_landmarks = self._live_reference_landmarks(self._map.points, self._reference_landmarks.points,
-                                                         previous_points, points_w)
-        line_landmarks = self._live_reference_landmarks(self._map.lines, self._reference_landmarks.lines,
-                                                        previous_lines, lines_w)
-        return ReferenceMatches(
-            points_w=points_w,
-            point_index=kept.points.current[points],
-            lines_w=lines_w,
-            line_index=kept.lines.current[lines],
-            point_landmarks=point_landmarks,
-            line_landmarks=line_landmarks,
-        )
-
-    @staticmethod
-    def _live_reference_landmarks(
-        kind: Landmarks, reference_ids: np.ndarray, previous: np.ndarray, geometry_w: np.ndarray
-    ) -> np.ndarray:
-        """The live landmark (K,) of reference features ``previous`` (K,), -1 for none; where there is one,
-        its row of ``geometry_w`` (K, ...) becomes the landmark's position (in place)."""
-        ids = reference_ids[previous]
-        live = kind.live(ids)
-        geometry_w[live] = kind.geometry[ids[live]]
-        return np.where(live, ids, -1)
+    @property
+    def reference(self) -> ReferenceFrame | None:
+        """The frame the next frame is matched against (None before the first frame)."""
+        return self._reference
 
     @property
     def motion_model(self) -> MotionModel:
@@ -482,9 +401,9 @@ class Tracker:
         self._frames_since_keyframe = 0
         self._local_map = gather_local_map(self._map, keyframe.id, self._config.mapping.tracking_keyframes)
         self._motion.T_w_p = keyframe.T_w_c
-        dynamic = _DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
-        landmarks = _LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
-        self._set_reference(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
+        dynamic = DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
+        landmarks = LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
+        self._reference = ReferenceFrame(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
 
     def _decide_keyframe(self, features: StereoFeatures, map_tracking: LocalMapTracking) -> KeyframeReason | None:
         """Whether the tracked frame becomes a keyframe (`pld_slam.keyframes`)."""
@@ -504,9 +423,9 @@ class Tracker:
         T_w_c: np.ndarray,
         tracked: bool,
         counts: TrackingCounts,
-        kept: _FrameMatches,
+        kept: FeatureMatches,
         labels: DynamicLabels,
-        landmarks: _LandmarkIds,
+        landmarks: LandmarkIds,
         renew: bool,
     ) -> None:
         """Record the dynamic features seen, age the reference, and renew it when worn, after a failure,
@@ -517,16 +436,12 @@ class Tracker:
         tracking goes on from the newest features, which is how it recovers from a wrong
         prediction. A frame without them (blank, blinded) keeps the old reference.
         """
-        self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
-        self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
         inliers = counts.point_inliers + counts.line_inliers
-        self._reference_age += 1
-        if self._reference_age == 1:
-            self._reference_inliers = inliers
-        renew = renew or (self._reference_is_worn(inliers) if tracked else self.can_be_reference(features))
-        if renew:
-            found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
-            self._set_reference(features, T_w_c, found, landmarks)
+        self._reference.record(kept, labels, inliers)
+        due = self._reference.is_worn(inliers, self._config) if tracked else self.can_be_reference(features)
+        if renew or due:
+            found = DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
+            self._reference = ReferenceFrame(features, T_w_c, found, landmarks)
 
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
@@ -536,49 +451,19 @@ class Tracker:
         """
         return TrackedFrame(self._motion.coast().copy(), self._motion.velocity, TrackingStatus.LOST)
 
-    def _set_reference(
-        self,
-        features: StereoFeatures,
-        T_w_c: np.ndarray,
-        dynamic: _DynamicIndices,
-        landmarks: _LandmarkIds | None = None,
-    ) -> None:
-        """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
-
-        ``dynamic`` lists the frame's features found dynamic: they stay known as dynamic
-        while it is the reference (`dynamic` module docstring). ``landmarks`` are the map
-        landmarks its features observe (none by default): frames matched to it inherit them.
-        """
-        self._reference, self._T_w_r = features, T_w_c
-        self._reference_landmarks = _LandmarkIds.none(features) if landmarks is None else landmarks
-        self._reference_age, self._reference_inliers = 0, 0
-        self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
-        self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)
-        stereo = dynamic.points[dynamic.points < len(features.points)]  # the stereo points: the first keypoints
-        self._seen_dynamic_points[stereo] = True
-        self._seen_dynamic_lines[dynamic.lines] = True
-
     def can_be_reference(self, features: StereoFeatures) -> bool:
-        """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
-        return len(features.points) + len(features.lines) >= 2 * self._config.tracking.min_inliers
-
-    def _reference_is_worn(self, inliers: int) -> bool:
-        """Whether the reference is old, or keeps too few of its first inliers."""
-        cfg = self._config.tracking
-        return (
-            self._reference_age >= cfg.reference_max_age
-            or inliers < cfg.reference_min_inlier_ratio * self._reference_inliers
-        )
+        """Whether a frame has the stereo points + lines for ``min_inliers`` twice over (`reference`)."""
+        return can_be_reference(features, self._config)
 
     def _match(
         self, reference: StereoFeatures, current: StereoFeatures, T_c_r: np.ndarray
-    ) -> tuple[_FrameMatches, bool]:
+    ) -> tuple[FeatureMatches, bool]:
         """Points and lines matched around the predicted pose ``T_c_r``, widening the window once if needed;
         and whether it was (the prediction was off)."""
         cfg = self._config.tracking
         point_radius, line_radius = cfg.point_search_radius_px, cfg.line_search_radius_px
         for attempt in range(2):
-            matches = _FrameMatches(
+            matches = FeatureMatches(
                 match_points(
                     self._camera, T_c_r, reference.points, current.points,
                     point_radius, self._config.points.scale_factor, cfg.max_point_distance, cfg.ratio,
@@ -594,7 +479,7 @@ class Tracker:
             line_radius *= cfg.wide_search_factor
         return matches, True
 
-    def _filter(self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches) -> _FrameMatches:
+    def _filter(self, reference: StereoFeatures, current: StereoFeatures, matches: FeatureMatches) -> FeatureMatches:
         """The matches that pass the enabled mismatch filters."""
         filters = self._config.filters
         points, lines = matches.points, matches.lines
@@ -608,10 +493,10 @@ class Tracker:
                 reference.lines.endpoints[lines.previous], current.lines.endpoints[lines.current], filters
             )
             lines = lines.subset(keep)
-        return _FrameMatches(points, lines)
+        return FeatureMatches(points, lines)
 
     def _label_dynamic(
-        self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult
+        self, reference: StereoFeatures, current: StereoFeatures, matches: FeatureMatches, solution: PoseOnlyResult
     ) -> DynamicLabels:
         """Dynamic labels of the matched features, predicted with the robustly fitted pose (`dynamic`).
 
@@ -644,7 +529,7 @@ class Tracker:
         predicted, depth_shift = predict_stereo_with_depth_sigma(self._camera, T_c_r, points_r, disparity_sigma)
         sigma = np.sqrt(np.sum(octave_sigma**2, axis=1) + depth_shift**2)
         cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
-        seen = self._seen_dynamic_points[matches.previous]
+        seen = self._reference.seen_dynamic_points[matches.previous]
         return dynamic_grid(predicted, detected, sigma, cell_size, config.dynamic, seen)
 
     def _dynamic_lines(
@@ -652,11 +537,11 @@ class Tracker:
     ) -> np.ndarray:
         """The dynamic LLG over matched lines (L,) bool, their segments predicted with ``T_c_r``."""
         predicted, _ = predict_segments(self._camera, T_c_r, reference.lines.endpoints_c[matches.previous])
-        seen = self._seen_dynamic_lines[matches.previous]
+        seen = self._reference.seen_dynamic_lines[matches.previous]
         return dynamic_llg(predicted, current.lines.endpoints[matches.current], self._config.dynamic, seen)
 
     def _detect_dynamic(
-        self, features: StereoFeatures, kept: _FrameMatches, points: PointObservations, lines: LineObservations,
+        self, features: StereoFeatures, kept: FeatureMatches, points: PointObservations, lines: LineObservations,
         solution: PoseOnlyResult, T_c_r_predicted: np.ndarray, widened: bool,
     ) -> tuple[PoseOnlyResult, DynamicLabels]:
         """The robust ``solution``, or the frame solved for the static world's motion where the
@@ -669,7 +554,7 @@ class Tracker:
             static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
                                            self._motion.trusted and not widened, self._pose_options, self._config)
             solution, moving = static.solution, static.moving
-        labels = self._label_dynamic(self._reference, features, kept, solution)
+        labels = self._label_dynamic(self._reference.features, features, kept, solution)
         return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | moving)
 
     def _without_dynamic(
@@ -699,7 +584,7 @@ def _status(tracked: bool, recovered: bool) -> TrackingStatus:
 
 
 def _dynamic_features(
-    current: StereoFeatures, matches: _FrameMatches, labels: DynamicLabels
+    current: StereoFeatures, matches: FeatureMatches, labels: DynamicLabels
 ) -> tuple[np.ndarray, np.ndarray]:
     """The current frame's keypoints (P_all,) and lines (L,) labelled dynamic, as bool masks over all of them.
 
@@ -733,7 +618,7 @@ def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
 
 
 def _rejected_features(
-    current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels,
+    current: StereoFeatures, matches: FeatureMatches, solution: PoseOnlyResult, labels: DynamicLabels,
     from_reference: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The current frame's keypoints (P_all,) and lines (L,) matched to the reference that ``solution``
@@ -751,7 +636,7 @@ def _static_observations(labels: DynamicLabels) -> ObservationMasks:
     return ObservationMasks(~labels.point_dynamic, ~labels.line_dynamic, ~labels.line_dynamic)
 
 
-def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_mask: np.ndarray) -> DynamicLabels:
+def _labels_from_mask(current: StereoFeatures, matches: FeatureMatches, moving_mask: np.ndarray) -> DynamicLabels:
     """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
     point_uv = current.points.uv[matches.points.current]
     segments = current.lines.endpoints[matches.lines.current]
@@ -760,7 +645,7 @@ def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_ma
 
 
 def _counts(
-    matched: _FrameMatches, kept: _FrameMatches, labels: DynamicLabels, solution: PoseOnlyResult
+    matched: FeatureMatches, kept: FeatureMatches, labels: DynamicLabels, solution: PoseOnlyResult
 ) -> TrackingCounts:
     """What survived each step against the reference frame (`TrackingCounts`; no map counts yet)."""
     return TrackingCounts(
