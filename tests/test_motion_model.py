@@ -17,9 +17,8 @@ def pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:
     return T
 
 
-def test_a_new_model_predicts_standing_still_at_the_origin_and_is_not_trusted():
+def test_a_new_model_predicts_standing_still_at_the_origin():
     model = MotionModel()
-    assert not model.trusted
     np.testing.assert_array_equal(model.predicted_T_w_c(), np.eye(4))
     np.testing.assert_array_equal(model.predicted_T_c_w(), np.eye(4))
 
@@ -47,13 +46,11 @@ def test_advance_projects_the_pose_onto_se3():
     assert model.T_w_p is T_w_c
 
 
-def test_coasting_over_a_skipped_frame_takes_the_prediction_and_stops_trusting_the_model():
+def test_coasting_over_a_skipped_frame_takes_the_prediction_and_keeps_the_velocity():
     model = MotionModel()
     model.advance(pose(0.0, (0.0, 0.0, 0.0)))
     model.advance(pose(0.0, (0.0, 0.0, 1.0)))
-    model.trusted = True
     coasted = model.coast()
-    assert not model.trusted
     np.testing.assert_allclose(coasted[:3, 3], [0.0, 0.0, 2.0], atol=1e-12)
     np.testing.assert_allclose(model.predicted_T_w_c()[:3, 3], [0.0, 0.0, 3.0], atol=1e-12)  # same velocity
 

@@ -23,7 +23,7 @@ from pld_slam.synth import write_sequence
 from pld_slam.system import System
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.reference import DynamicIndices, FeatureMatches, ReferenceFrame, can_be_reference
-from pld_slam.tracking.tracker import Tracker, TrackingStatus
+from pld_slam.tracking.tracker import Tracker, TrackingState, TrackingStatus
 
 N_FRAMES = 15
 FAILED = 7
@@ -166,10 +166,10 @@ def test_tracking_recovers_after_a_frame_without_features(sequence, features, de
 def test_a_skipped_frame_keeps_the_reference_so_the_next_frame_is_tracked(sequence, features):
     tracker = Tracker(sequence.camera, load_config())
     before = [tracker.track(f) for f in features[:FAILED]]
-    assert tracker.motion_model.trusted  # the last frame was tracked normally
+    assert tracker.state is TrackingState.OK and tracker.state.motion_trusted  # the last frame was tracked normally
     skipped = tracker.skip()
     # the next frame is two frames' motion from the last tracked one: the model is no longer trusted
-    assert not tracker.motion_model.trusted
+    assert tracker.state is TrackingState.LOST and not tracker.state.motion_trusted
     after = [tracker.track(f) for f in features[FAILED + 1 :]]
     assert skipped.status is TrackingStatus.LOST
     expected = nearest_pose(before[-1].T_w_c @ inverse(before[-1].T_c_p))
@@ -248,3 +248,53 @@ def test_the_tracker_renews_its_reference_every_max_age_frames(sequence, feature
         references.append(next(k for k, f in enumerate(features) if f is tracker.reference.features))
     assert references == [0, 0, 0, 3, 3, 3, 6, 6]
     assert tracker.reference.age == 1
+
+
+# --- the state and the strategies -----------------------------------------------------
+
+
+def test_the_state_steps_from_not_initialised_through_the_first_frame_to_ok_and_lost(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    states = [tracker.state]
+    for frame in [*features[:3], no_features(), features[4]]:
+        tracker.track(frame)
+        states.append(tracker.state)
+    assert states == [TrackingState.NOT_INITIALISED, TrackingState.INITIALISED, TrackingState.OK, TrackingState.OK,
+                      TrackingState.LOST, TrackingState.OK]
+    assert [s.motion_trusted for s in states] == [False, False, True, True, False, True]
+    assert [s.status for s in states[1:]] == [TrackingStatus.FIRST, TrackingStatus.TRACKED, TrackingStatus.TRACKED,
+                                              TrackingStatus.LOST, TrackingStatus.TRACKED]
+
+
+def test_a_skip_before_the_first_frame_leaves_the_next_frame_the_first(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    assert tracker.skip().status is TrackingStatus.LOST
+    assert tracker.state is TrackingState.NOT_INITIALISED
+    assert tracker.track(features[0]).status is TrackingStatus.FIRST
+
+
+def test_tracking_the_reference_changes_nothing_and_gives_the_pose_track_takes(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    for frame in features[:4]:
+        tracker.track(frame)
+    reference, age, T_w_p = tracker.reference, tracker.reference.age, tracker.motion_model.T_w_p
+    guided = tracker.track_reference(features[4])
+    assert tracker.reference is reference and reference.age == age and tracker.motion_model.T_w_p is T_w_p
+    assert tracker.state is TrackingState.OK
+    assert guided.tracked and not guided.widened
+    assert guided.counts.point_inliers + guided.counts.line_inliers >= load_config().tracking.min_inliers
+    again = tracker.track_reference(features[4])
+    np.testing.assert_array_equal(again.T_w_c, guided.T_w_c)
+    tracked = tracker.track(features[4])
+    np.testing.assert_allclose(tracked.T_w_c, guided.T_w_c, rtol=0, atol=1e-9)
+    assert tracked.counts == guided.counts
+    assert reference.age == age + 1
+
+
+def test_a_frame_without_features_is_not_tracked_by_the_reference(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    for frame in features[:3]:
+        tracker.track(frame)
+    guided = tracker.track_reference(no_features())
+    assert not guided.tracked and guided.T_w_c is None and guided.widened
+    assert guided.counts.point_matches == 0

@@ -16,9 +16,12 @@ from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.geometry.se3 import inverse
+from pld_slam.matching.projection import LandmarkSnapshot
+from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
-from pld_slam.tracking import tracker as tracker_module
+from pld_slam.tracking.local_map import LocalMap, gather_local_map
+from pld_slam.tracking.relocalisation import candidate_local_maps, track_from_scratch
 from pld_slam.tracking.tracker import TrackingStatus
 
 N_FRAMES = 30
@@ -63,34 +66,40 @@ def test_the_sub_sequence_keeps_the_chosen_frames_and_rebases_the_ground_truth(s
     assert part.name.endswith("_from12_every2")
 
 
-def test_posing_without_the_prior_against_another_keyframe_leaves_the_tracker_on_its_own(street, monkeypatch):
-    """Relocalisation against another keyframe's local map is only a proposal: the tracker keeps its
-    reference keyframe and local map until `track` takes the pose (it may keep the guided one)."""
+def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leaves_the_tracker_on_its_own(street):
+    """Posing without the prior tries the reference keyframe's local map first, then those of the keyframes
+    most similar by GGS; the first that gives a pose is only a proposal: the tracker keeps its reference
+    keyframe until `track` takes the pose (it may keep the guided one)."""
     config = load_config()
     system = System(street, config)
     try:
         for index in range(16):
             system.process_frame(index)
         tracker = system.tracker
-        reference, local_map = tracker._reference_keyframe, tracker._local_map
-        first = min(system.local_mapping.map.keyframes)
-        assert reference.id != first
-        real_pose_without_prior = tracker_module.pose_without_prior
-        calls = []
-
-        def fails_on_own_local_map(*args, **kwargs):
-            calls.append(len(calls))
-            return None if len(calls) == 1 else real_pose_without_prior(*args, **kwargs)
-
-        monkeypatch.setattr(tracker_module, "pose_without_prior", fails_on_own_local_map)
-        monkeypatch.setattr(tracker_module, "keyframes_by_similarity", lambda *args: [first])
+        world_map = system.local_mapping.map
+        reference = tracker.reference_keyframe_id
+        first = min(world_map.keyframes)
+        assert reference != first
         frame = street[16]
         features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
                                            config.ggs)
-        proposal = tracker._track_without_prior(features, np.zeros(len(features.keypoints), dtype=bool),
-                                                np.zeros(len(features.lines), dtype=bool))
+        own = gather_local_map(world_map, reference, config.mapping.tracking_keyframes)
+        candidates = candidate_local_maps(world_map, own, reference, features.place_ggs, config)
+        none = np.zeros(0, dtype=np.int64)
+        empty = LocalMap(own.keyframes, LandmarkSnapshot.of(world_map.points, none),
+                         LandmarkSnapshot.of(world_map.lines, none))
+        first_local_map = gather_local_map(world_map, first, config.mapping.tracking_keyframes)
+        options = PoseOnlyOptions(use_line_vertical=config.lines.vertical_error,
+                                  use_line_horizontal=config.lines.horizontal_error)
+        static = np.zeros(len(features.keypoints), dtype=bool), np.zeros(len(features.lines), dtype=bool)
+        proposal = track_from_scratch(street.camera, [empty, first_local_map], features, *static, config, options)
+        nothing = track_from_scratch(street.camera, [empty], features, *static, config, options)
     finally:
         system.close()
-    assert len(calls) == 2  # the own local map failed, the first keyframe's gave a pose
-    assert tracker._reference_keyframe is reference and tracker._local_map is local_map
-    assert proposal is not None and proposal[1].keyframes[0] == first
+    assert candidates[0] is own
+    assert 1 < len(candidates) <= 1 + config.tracking.relocalisation_keyframes
+    assert all(local_map.keyframes[0] != reference for local_map in candidates[1:])
+    assert nothing is None  # a local map without points gives no pose: the next one is tried
+    assert proposal is not None and proposal.local_map is first_local_map
+    assert proposal.tracking.posed(config.tracking.min_inliers)
+    assert tracker.reference_keyframe_id == reference

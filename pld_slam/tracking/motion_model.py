@@ -5,12 +5,12 @@ The next frame is predicted to move as the last one did: from the last pose ``T_
 current camera). The prediction seeds the guided search against the reference frame
 (`pld_slam.matching.frames`) and is the pose a frame that cannot be tracked keeps.
 
-The model is *trusted* only after a frame tracked normally (`TrackingState.OK`): after a
-lost or recovered frame, a skipped one, or at the start, the last motion says little about
-the next one. A trusted prediction is the static world's motion when movers pull the solve
-(`static_world`), and a local-map pose it predicted is not posed again from scratch
-(`pld_slam.tracking.tracker` module docstring); distances from it are in units of its expected
-error (`static_world.motion_model_distance`).
+The tracker trusts the model only after a frame tracked normally
+(`pld_slam.tracking.tracker.TrackingState`): after a lost or recovered frame, a skipped one,
+or at the start, the last motion says little about the next one. A trusted prediction is
+the static world's motion when movers pull the solve (`static_world`), and a local-map pose
+it predicted is not posed again from scratch (`pld_slam.tracking.tracker` module docstring);
+distances from it are in units of its expected error (`static_world.motion_model_distance`).
 """
 
 import numpy as np
@@ -28,13 +28,11 @@ class MotionModel:
     T_w_p : (4, 4) camera-to-world pose of the last frame (identity before any).
     velocity : (4, 4) ``T_c_p``, the motion from the frame before the last to the last one
         (identity before any: standing still).
-    trusted : whether the last frame was tracked normally, so the prediction can be relied on.
     """
 
     def __init__(self) -> None:
         self.T_w_p = np.eye(4)
         self.velocity = np.eye(4)
-        self.trusted = False
 
     def predicted_T_w_c(self) -> np.ndarray:
         """The predicted pose (4, 4) of the next frame, camera to world: ``T_w_p @ inverse(velocity)``."""
@@ -58,12 +56,11 @@ class MotionModel:
         return T_w_c, T_c_p
 
     def coast(self) -> np.ndarray:
-        """Move on by the prediction over a frame without a pose (skipped), untrusted from now on.
+        """Move on by the prediction over a frame without a pose (skipped).
 
         Returns the prediction (4, 4, camera to world, re-projected onto SE(3)), now ``T_w_p``;
         the velocity stays.
         """
-        self.trusted = False
         self.T_w_p = nearest_pose(self.predicted_T_w_c())
         return self.T_w_p
 
