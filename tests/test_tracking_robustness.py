@@ -22,7 +22,7 @@ from pld_slam.synth import write_sequence
 from pld_slam.system import System
 from pld_slam.tracking.local_map import LocalMap, gather_local_map
 from pld_slam.tracking.relocalisation import candidate_local_maps, track_from_scratch
-from pld_slam.tracking.tracker import TrackingStatus
+from pld_slam.tracking.tracker import TrackingState, TrackingStatus
 
 N_FRAMES = 30
 
@@ -103,3 +103,32 @@ def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leave
     assert proposal is not None and proposal.local_map is first_local_map
     assert proposal.tracking.posed(config.tracking.min_inliers)
     assert tracker.reference_keyframe_id == reference
+
+
+def test_with_a_map_track_takes_the_local_map_pose_of_its_strategies(street):
+    """The strategies run one by one give what `track` gives: the reference's pose, then the local map's,
+    which stands when relocalising proposes nothing; and running them changes nothing."""
+    config = load_config()
+    system = System(street, config)
+    try:
+        for index in range(16):
+            system.process_frame(index)
+        tracker = system.tracker
+        frame = street[16]
+        features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
+                                           config.ggs)
+        reference, keyframe, state = tracker.reference, tracker.reference_keyframe_id, tracker.state
+        guided = tracker.track_reference(features)
+        map_tracking = tracker.track_local_map(features, guided, guided.T_w_c)
+        relocalised = tracker.relocalise(features, guided, map_tracking)
+        assert tracker.reference is reference and tracker.reference_keyframe_id == keyframe
+        assert tracker.state is state is TrackingState.OK
+        tracked = tracker.track(features)
+    finally:
+        system.close()
+    assert guided.tracked and map_tracking.posed(config.tracking.min_inliers)
+    assert relocalised is None
+    assert tracked.status is TrackingStatus.TRACKED
+    np.testing.assert_allclose(tracked.T_w_c, inverse(map_tracking.solution.T_c_w), rtol=0, atol=1e-9)
+    assert tracked.counts.map_point_inliers == np.count_nonzero(map_tracking.point_ids >= 0)
+    assert not np.allclose(tracked.T_w_c, guided.T_w_c, rtol=0, atol=1e-9)  # the local map moved the pose
