@@ -132,3 +132,21 @@ def test_with_a_map_track_takes_the_local_map_pose_of_its_strategies(street):
     np.testing.assert_allclose(tracked.T_w_c, inverse(map_tracking.solution.T_c_w), rtol=0, atol=1e-9)
     assert tracked.counts.map_point_inliers == np.count_nonzero(map_tracking.point_ids >= 0)
     assert not np.allclose(tracked.T_w_c, guided.T_w_c, rtol=0, atol=1e-9)  # the local map moved the pose
+
+
+def test_a_frame_posed_without_the_prior_leaves_the_state_recovered_and_the_motion_model_untrusted(street):
+    """Two frames in three dropped: the guided search is off, and some frames are relocalised (measured:
+    frames 1 and 5 of 10). The state each frame leaves is its status, and only a frame tracked normally
+    lets the next one trust the motion model."""
+    sequence = street.subsequence(0, 3)
+    system = System(sequence, load_config())
+    seen = []
+    try:
+        for index in range(len(sequence)):
+            record = system.process_frame(index)
+            seen.append((record.status, system.tracker.state))
+    finally:
+        system.close()
+    assert (TrackingStatus.RECOVERED, TrackingState.RECOVERED) in seen
+    assert all(state.status is status for status, state in seen)
+    assert all(state.motion_trusted == (status is TrackingStatus.TRACKED) for status, state in seen)
