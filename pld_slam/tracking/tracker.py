@@ -12,8 +12,9 @@
   (`relocalisation`), and the better of the two is kept (below).
 - `need_new_keyframe`: whether the tracked frame becomes a keyframe (`pld_slam.keyframes`).
 
-The frame's new state (tracked normally, recovered, lost) is its `TrackingStatus`, and
-decides whether the motion model is trusted for the next frame. The tracker reads the map
+The state a frame leaves (OK: tracked normally; RECOVERED; LOST) is reported as its
+`TrackingStatus` (TRACKED, RECOVERED, LOST), and decides whether the motion model is
+trusted for the next frame. The tracker reads the map
 and never changes it: what it saw goes back to local mapping in `TrackedFrame`.
 
 Reference frame (`reference`): a frame a few frames back, renewed when worn, after a
