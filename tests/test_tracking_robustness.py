@@ -8,6 +8,8 @@ trajectory must stay close to the ground truth: with the map on, a frame whose g
 search goes wrong is posed again without the prior (`pld_slam.tracking.relocalisation`).
 """
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 
@@ -47,6 +49,24 @@ def intact_ate(street) -> float:
     return ate
 
 
+@contextmanager
+def system_through(sequence, n_frames: int, config):
+    """A system (map on) that has processed the first ``n_frames`` of ``sequence``; closed on leaving."""
+    system = System(sequence, config)
+    try:
+        for index in range(n_frames):
+            system.process_frame(index)
+        yield system
+    finally:
+        system.close()
+
+
+def features_of(sequence, index: int, config):
+    """The stereo features of frame ``index`` of ``sequence``, with its GGS."""
+    frame = sequence[index]
+    return extract_stereo_features(frame.left, frame.right, sequence.camera, config.points, config.lines, config.ggs)
+
+
 @pytest.mark.parametrize("start, step", [(0, 2), (12, 1), (12, 2)])
 def test_every_frame_is_tracked_with_frames_dropped_or_a_moving_start(street, intact_ate, start, step):
     ate, statuses = run_ate(street.subsequence(start, step))
@@ -71,18 +91,13 @@ def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leave
     most similar by GGS; the first that gives a pose is only a proposal: the tracker keeps its reference
     keyframe until `track` takes the pose (it may keep the guided one)."""
     config = load_config()
-    system = System(street, config)
-    try:
-        for index in range(16):
-            system.process_frame(index)
+    with system_through(street, 16, config) as system:
         tracker = system.tracker
         world_map = system.local_mapping.map
         reference = tracker.reference_keyframe_id
         first = min(world_map.keyframes)
         assert reference != first
-        frame = street[16]
-        features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
-                                           config.ggs)
+        features = features_of(street, 16, config)
         own = gather_local_map(world_map, reference, config.mapping.tracking_keyframes)
         candidates = candidate_local_maps(world_map, own, reference, features.place_ggs, config)
         none = np.zeros(0, dtype=np.int64)
@@ -94,8 +109,6 @@ def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leave
         static = np.zeros(len(features.keypoints), dtype=bool), np.zeros(len(features.lines), dtype=bool)
         proposal = track_from_scratch(street.camera, [empty, first_local_map], features, *static, config, options)
         nothing = track_from_scratch(street.camera, [empty], features, *static, config, options)
-    finally:
-        system.close()
     assert candidates[0] is own
     assert 1 < len(candidates) <= 1 + config.tracking.relocalisation_keyframes
     assert all(local_map.keyframes[0] != reference for local_map in candidates[1:])
@@ -109,14 +122,9 @@ def test_with_a_map_track_takes_the_local_map_pose_of_its_strategies(street):
     """The strategies run one by one give what `track` gives: the reference's pose, then the local map's,
     which stands when relocalising proposes nothing; and running them changes nothing."""
     config = load_config()
-    system = System(street, config)
-    try:
-        for index in range(16):
-            system.process_frame(index)
+    with system_through(street, 16, config) as system:
         tracker = system.tracker
-        frame = street[16]
-        features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
-                                           config.ggs)
+        features = features_of(street, 16, config)
         reference, keyframe, state = tracker.reference, tracker.reference_keyframe_id, tracker.state
         guided = tracker.track_reference(features)
         map_tracking = tracker.track_local_map(features, guided, guided.T_w_c)
@@ -124,8 +132,6 @@ def test_with_a_map_track_takes_the_local_map_pose_of_its_strategies(street):
         assert tracker.reference is reference and tracker.reference_keyframe_id == keyframe
         assert tracker.state is state is TrackingState.OK
         tracked = tracker.track(features)
-    finally:
-        system.close()
     assert guided.tracked and map_tracking.posed(config.tracking.min_inliers)
     assert relocalised is None
     assert tracked.status is TrackingStatus.TRACKED
