@@ -18,9 +18,13 @@ from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.frontend import StereoFeatures, StereoLines, StereoPoints, extract_stereo_features
 from pld_slam.geometry.se3 import inverse, nearest_pose
+from pld_slam.matching.frames import FrameMatches
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
-from pld_slam.tracking.tracker import Tracker, TrackingStatus
+from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.moving_masks import OUTLINE_MARGIN_PX
+from pld_slam.tracking.reference import DynamicIndices, FeatureMatches, ReferenceFrame, can_be_reference
+from pld_slam.tracking.tracker import Tracker, TrackingState, TrackingStatus
 
 N_FRAMES = 15
 FAILED = 7
@@ -163,10 +167,10 @@ def test_tracking_recovers_after_a_frame_without_features(sequence, features, de
 def test_a_skipped_frame_keeps_the_reference_so_the_next_frame_is_tracked(sequence, features):
     tracker = Tracker(sequence.camera, load_config())
     before = [tracker.track(f) for f in features[:FAILED]]
-    assert tracker._prior_trusted  # the last frame was tracked normally
+    assert tracker.state is TrackingState.OK and tracker.state.motion_trusted  # the last frame was tracked normally
     skipped = tracker.skip()
     # the next frame is two frames' motion from the last tracked one: the model is no longer trusted
-    assert not tracker._prior_trusted
+    assert tracker.state is TrackingState.LOST and not tracker.state.motion_trusted
     after = [tracker.track(f) for f in features[FAILED + 1 :]]
     assert skipped.status is TrackingStatus.LOST
     expected = nearest_pose(before[-1].T_w_c @ inverse(before[-1].T_c_p))
@@ -182,3 +186,131 @@ def test_the_frame_after_a_featureless_frame_is_tracked(sequence, features):
     tracked = track_all(sequence, frames)
     assert tracked[FAILED].status is TrackingStatus.LOST
     assert tracked[FAILED + 1].status is TrackingStatus.TRACKED
+
+
+# --- the reference frame --------------------------------------------------------------
+
+
+def matches_of(points: list[int], lines: list[int]) -> FeatureMatches:
+    """Reference features ``points`` / ``lines`` matched to the same indices of the current frame."""
+    points, lines = np.array(points, dtype=np.int64), np.array(lines, dtype=np.int64)
+    return FeatureMatches(FrameMatches(points, points), FrameMatches(lines, lines))
+
+
+def test_a_new_reference_knows_its_dynamic_stereo_features_and_no_landmarks(features):
+    frame = features[0]
+    n_stereo = len(frame.points)
+    assert len(frame.keypoints) > n_stereo  # some keypoints without a stereo match: not reference points
+    reference = ReferenceFrame(frame, np.eye(4), DynamicIndices(np.array([2, n_stereo]), np.array([1])))
+    assert np.flatnonzero(reference.seen_dynamic_points).tolist() == [2]
+    assert np.flatnonzero(reference.seen_dynamic_lines).tolist() == [1]
+    assert (reference.landmarks.points == -1).all() and len(reference.landmarks.points) == n_stereo
+    assert reference.age == 0 and reference.first_inliers == 0
+
+
+def test_the_reference_remembers_what_later_frames_found_dynamic(features):
+    reference = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    labels = DynamicLabels(np.zeros((3, 2)), np.array([False, True, True]), np.zeros((2, 4)), np.array([True, False]))
+    reference.record(matches_of([4, 5, 6], [7, 8]), labels, inliers=50)
+    assert np.flatnonzero(reference.seen_dynamic_points).tolist() == [5, 6]
+    assert np.flatnonzero(reference.seen_dynamic_lines).tolist() == [7]
+    assert reference.age == 1 and reference.first_inliers == 50
+
+
+def test_the_reference_wears_out_with_age_and_with_lost_inliers(features):
+    config = load_config(overrides=("tracking.reference_max_age=3", "tracking.reference_min_inlier_ratio=0.5"))
+    nothing = DynamicLabels.none(np.zeros((0, 2)), np.zeros((0, 4)))
+    reference = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    worn = []
+    for _ in range(3):
+        reference.record(matches_of([], []), nothing, inliers=100)
+        worn.append(reference.is_worn(100, config))
+    assert worn == [False, False, True]
+    young = ReferenceFrame(features[0], np.eye(4), DynamicIndices(np.zeros(0, int), np.zeros(0, int)))
+    young.record(matches_of([], []), nothing, inliers=100)  # the first frame sets the inliers to keep
+    young.record(matches_of([], []), nothing, inliers=10)
+    assert not young.is_worn(50, config) and young.is_worn(49, config)
+
+
+def test_a_frame_can_be_a_reference_with_twice_min_inliers_features(sequence, features):
+    config = load_config()
+    assert can_be_reference(features[0], config)
+    assert not can_be_reference(no_features(), config)
+    tracker = Tracker(sequence.camera, config)
+    assert tracker.can_be_reference(features[0]) and not tracker.can_be_reference(no_features())
+
+
+def test_the_tracker_renews_its_reference_every_max_age_frames(sequence, features):
+    tracker = Tracker(sequence.camera, load_config(overrides=("tracking.reference_max_age=3",)))
+    assert tracker.reference is None
+    references = []
+    for frame in features[:8]:
+        tracker.track(frame)
+        references.append(next(k for k, f in enumerate(features) if f is tracker.reference.features))
+    assert references == [0, 0, 0, 3, 3, 3, 6, 6]
+    assert tracker.reference.age == 1
+
+
+# --- the state and the strategies -----------------------------------------------------
+
+
+def test_the_state_steps_from_not_initialised_through_the_first_frame_to_ok_and_lost(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    states = [tracker.state]
+    for frame in [*features[:3], no_features(), features[4]]:
+        tracker.track(frame)
+        states.append(tracker.state)
+    assert states == [TrackingState.NOT_INITIALISED, TrackingState.INITIALISED, TrackingState.OK, TrackingState.OK,
+                      TrackingState.LOST, TrackingState.OK]
+    assert [s.motion_trusted for s in states] == [False, False, True, True, False, True]
+    assert [s.status for s in states[1:]] == [TrackingStatus.FIRST, TrackingStatus.TRACKED, TrackingStatus.TRACKED,
+                                              TrackingStatus.LOST, TrackingStatus.TRACKED]
+
+
+def test_a_skip_before_the_first_frame_leaves_the_next_frame_the_first(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    assert tracker.skip().status is TrackingStatus.LOST
+    assert tracker.state is TrackingState.NOT_INITIALISED
+    assert tracker.track(features[0]).status is TrackingStatus.FIRST
+
+
+def test_tracking_the_reference_changes_nothing_and_gives_the_pose_track_takes(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    for frame in features[:4]:
+        tracker.track(frame)
+    reference, age, T_w_p = tracker.reference, tracker.reference.age, tracker.motion_model.T_w_p
+    guided = tracker.track_reference(features[4])
+    assert tracker.reference is reference and reference.age == age and tracker.motion_model.T_w_p is T_w_p
+    assert tracker.state is TrackingState.OK
+    assert guided.tracked and not guided.widened
+    assert guided.counts.point_inliers + guided.counts.line_inliers >= load_config().tracking.min_inliers
+    again = tracker.track_reference(features[4])
+    np.testing.assert_array_equal(again.T_w_c, guided.T_w_c)
+    tracked = tracker.track(features[4])
+    np.testing.assert_allclose(tracked.T_w_c, guided.T_w_c, rtol=0, atol=1e-9)
+    assert tracked.counts == guided.counts
+    assert reference.age == age + 1
+
+
+def test_a_frame_without_features_is_not_tracked_by_the_reference(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    for frame in features[:3]:
+        tracker.track(frame)
+    guided = tracker.track_reference(no_features())
+    assert not guided.tracked and guided.T_w_c is None and guided.widened
+    assert guided.counts.point_matches == 0
+
+
+def test_with_a_moving_mask_the_features_on_it_are_the_dynamic_ones_and_stay_out_of_the_solve(sequence, features):
+    tracker = Tracker(sequence.camera, load_config())
+    for frame in features[:3]:
+        tracker.track(frame)
+    mask = np.zeros((sequence.camera.height, sequence.camera.width), dtype=bool)
+    mask[:, : sequence.camera.width // 3] = True  # the left third "moves"
+    guided = tracker.track_reference(features[3], mask)
+    on_mask = np.rint(guided.labels.point_uv[:, 0]) < sequence.camera.width // 3 + OUTLINE_MARGIN_PX  # outline too
+    assert on_mask.any() and not on_mask.all()
+    np.testing.assert_array_equal(guided.labels.point_dynamic, on_mask)
+    assert guided.counts.dynamic_points == np.count_nonzero(on_mask)
+    assert not (guided.solution.inliers.points & guided.labels.point_dynamic).any()
+    assert guided.tracked

@@ -8,6 +8,8 @@ trajectory must stay close to the ground truth: with the map on, a frame whose g
 search goes wrong is posed again without the prior (`pld_slam.tracking.relocalisation`).
 """
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 
@@ -16,10 +18,13 @@ from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.geometry.se3 import inverse
+from pld_slam.matching.projection import LandmarkSnapshot
+from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
-from pld_slam.tracking import tracker as tracker_module
-from pld_slam.tracking.tracker import TrackingStatus
+from pld_slam.tracking.local_map import LocalMap, gather_local_map
+from pld_slam.tracking.relocalisation import candidate_local_maps, track_from_scratch
+from pld_slam.tracking.tracker import TrackingState, TrackingStatus
 
 N_FRAMES = 30
 
@@ -44,6 +49,24 @@ def intact_ate(street) -> float:
     return ate
 
 
+@contextmanager
+def system_through(sequence, n_frames: int, config):
+    """A system (map on) that has processed the first ``n_frames`` of ``sequence``; closed on leaving."""
+    system = System(sequence, config)
+    try:
+        for index in range(n_frames):
+            system.process_frame(index)
+        yield system
+    finally:
+        system.close()
+
+
+def features_of(sequence, index: int, config):
+    """The stereo features of frame ``index`` of ``sequence``, with its GGS."""
+    frame = sequence[index]
+    return extract_stereo_features(frame.left, frame.right, sequence.camera, config.points, config.lines, config.ggs)
+
+
 @pytest.mark.parametrize("start, step", [(0, 2), (12, 1), (12, 2)])
 def test_every_frame_is_tracked_with_frames_dropped_or_a_moving_start(street, intact_ate, start, step):
     ate, statuses = run_ate(street.subsequence(start, step))
@@ -63,34 +86,73 @@ def test_the_sub_sequence_keeps_the_chosen_frames_and_rebases_the_ground_truth(s
     assert part.name.endswith("_from12_every2")
 
 
-def test_posing_without_the_prior_against_another_keyframe_leaves_the_tracker_on_its_own(street, monkeypatch):
-    """Relocalisation against another keyframe's local map is only a proposal: the tracker keeps its
-    reference keyframe and local map until `track` takes the pose (it may keep the guided one)."""
+def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leaves_the_tracker_on_its_own(street):
+    """Posing without the prior tries the reference keyframe's local map first, then those of the keyframes
+    most similar by GGS; the first that gives a pose is only a proposal: the tracker keeps its reference
+    keyframe until `track` takes the pose (it may keep the guided one)."""
     config = load_config()
-    system = System(street, config)
-    try:
-        for index in range(16):
-            system.process_frame(index)
+    with system_through(street, 16, config) as system:
         tracker = system.tracker
-        reference, local_map = tracker._reference_keyframe, tracker._local_map
-        first = min(system.local_mapping.map.keyframes)
-        assert reference.id != first
-        real_pose_without_prior = tracker_module.pose_without_prior
-        calls = []
+        world_map = system.local_mapping.map
+        reference = tracker.reference_keyframe_id
+        first = min(world_map.keyframes)
+        assert reference != first
+        features = features_of(street, 16, config)
+        own = gather_local_map(world_map, reference, config.mapping.tracking_keyframes)
+        candidates = candidate_local_maps(world_map, own, reference, features.place_ggs, config)
+        none = np.zeros(0, dtype=np.int64)
+        empty = LocalMap(own.keyframes, LandmarkSnapshot.of(world_map.points, none),
+                         LandmarkSnapshot.of(world_map.lines, none))
+        first_local_map = gather_local_map(world_map, first, config.mapping.tracking_keyframes)
+        options = PoseOnlyOptions(use_line_vertical=config.lines.vertical_error,
+                                  use_line_horizontal=config.lines.horizontal_error)
+        static = np.zeros(len(features.keypoints), dtype=bool), np.zeros(len(features.lines), dtype=bool)
+        proposal = track_from_scratch(street.camera, [empty, first_local_map], features, *static, config, options)
+        nothing = track_from_scratch(street.camera, [empty], features, *static, config, options)
+    assert candidates[0] is own
+    assert 1 < len(candidates) <= 1 + config.tracking.relocalisation_keyframes
+    assert all(local_map.keyframes[0] != reference for local_map in candidates[1:])
+    assert nothing is None  # a local map without points gives no pose: the next one is tried
+    assert proposal is not None and proposal.local_map is first_local_map
+    assert proposal.tracking.posed(config.tracking.min_inliers)
+    assert tracker.reference_keyframe_id == reference
 
-        def fails_on_own_local_map(*args, **kwargs):
-            calls.append(len(calls))
-            return None if len(calls) == 1 else real_pose_without_prior(*args, **kwargs)
 
-        monkeypatch.setattr(tracker_module, "pose_without_prior", fails_on_own_local_map)
-        monkeypatch.setattr(tracker_module, "keyframes_by_similarity", lambda *args: [first])
-        frame = street[16]
-        features = extract_stereo_features(frame.left, frame.right, street.camera, config.points, config.lines,
-                                           config.ggs)
-        proposal = tracker._track_without_prior(features, np.zeros(len(features.keypoints), dtype=bool),
-                                                np.zeros(len(features.lines), dtype=bool))
+def test_with_a_map_track_takes_the_local_map_pose_of_its_strategies(street):
+    """The strategies run one by one give what `track` gives: the reference's pose, then the local map's,
+    which stands when relocalising proposes nothing; and running them changes nothing."""
+    config = load_config()
+    with system_through(street, 16, config) as system:
+        tracker = system.tracker
+        features = features_of(street, 16, config)
+        reference, keyframe, state = tracker.reference, tracker.reference_keyframe_id, tracker.state
+        guided = tracker.track_reference(features)
+        map_tracking = tracker.track_local_map(features, guided, guided.T_w_c)
+        relocalised = tracker.relocalise(features, guided, map_tracking)
+        assert tracker.reference is reference and tracker.reference_keyframe_id == keyframe
+        assert tracker.state is state is TrackingState.OK
+        tracked = tracker.track(features)
+    assert guided.tracked and map_tracking.posed(config.tracking.min_inliers)
+    assert relocalised is None
+    assert tracked.status is TrackingStatus.TRACKED
+    np.testing.assert_allclose(tracked.T_w_c, inverse(map_tracking.solution.T_c_w), rtol=0, atol=1e-9)
+    assert tracked.counts.map_point_inliers == np.count_nonzero(map_tracking.point_ids >= 0)
+    assert not np.allclose(tracked.T_w_c, guided.T_w_c, rtol=0, atol=1e-9)  # the local map moved the pose
+
+
+def test_a_frame_posed_without_the_prior_leaves_the_state_recovered_and_the_motion_model_untrusted(street):
+    """Two frames in three dropped: the guided search is off, and some frames are relocalised (measured:
+    frames 1 and 5 of 10). The state each frame leaves is its status, and only a frame tracked normally
+    lets the next one trust the motion model."""
+    sequence = street.subsequence(0, 3)
+    system = System(sequence, load_config())
+    seen = []
+    try:
+        for index in range(len(sequence)):
+            record = system.process_frame(index)
+            seen.append((record.status, system.tracker.state))
     finally:
         system.close()
-    assert len(calls) == 2  # the own local map failed, the first keyframe's gave a pose
-    assert tracker._reference_keyframe is reference and tracker._local_map is local_map
-    assert proposal is not None and proposal[1].keyframes[0] == first
+    assert (TrackingStatus.RECOVERED, TrackingState.RECOVERED) in seen
+    assert all(state.status is status for status, state in seen)
+    assert all(state.motion_trusted == (status is TrackingStatus.TRACKED) for status, state in seen)

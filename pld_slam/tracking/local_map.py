@@ -191,6 +191,10 @@ class LocalMapTracking:
         """Landmarks (points + lines) matched as inliers."""
         return int(np.count_nonzero(self.point_ids >= 0) + np.count_nonzero(self.line_ids >= 0))
 
+    def posed(self, min_inliers: int) -> bool:
+        """Whether it gave a pose: a converged solve on at least ``min_inliers`` landmarks."""
+        return self.solution.success and self.tracked_landmarks >= min_inliers
+
 
 def local_keyframes(world_map: Map, reference: int, limit: int) -> tuple[int, ...]:
     """The reference keyframe, its covisible keyframes strongest first, then theirs, up to ``limit`` ids."""

@@ -1,26 +1,24 @@
 """`Tracker`: the tracking thread of PLD-SLAM.
 
-The tracker owns a reference frame's stereo features and the constant-velocity motion
-model. For each new frame it predicts the pose from the last inter-frame motion, matches
-the reference features to the current ones around their predictions (`pld_slam.matching.frames`),
-removes mismatches with the paper's two filters (`outliers`), leaves out the features that
-disagree with the motion model (`dynamic`: dynamic grid and dynamic LLG), and estimates the pose
-relative to the reference by pose-only least squares over the point reprojection and line
-vertical/horizontal errors (`pld_slam.optim.pose_only`), rejecting outliers over rounds.
-With a map (``mapping.enabled``), that pose is the first estimate: the frame is then
-tracked against the local map (`local_map`), whose pose is the frame's, and the tracker
-decides whether the frame becomes a keyframe (`pld_slam.keyframes`). The tracker reads
-the map and never changes it: what it saw goes back to local mapping in `TrackedFrame`.
+`Tracker.track` reads as ORB-SLAM's ``Track()``: the tracking state left by the last frame
+(`TrackingState`) decides what runs, then named strategies, each a public method:
 
-Reference frame. The paper tracks the previous frame and then the local map. We track a
-reference frame a few frames back, renewed (the current frame becomes the reference)
-after ``tracking.reference_max_age`` frames, when the inliers fall below
-``tracking.reference_min_inlier_ratio`` of those of the reference's first tracked frame,
-and with a map at every keyframe (`use_keyframe`), whose BA-corrected pose it takes.
-Adjacent frames are too close for a moving object to stand out: on KITTI raw 0005 a
-near van moves ~0.08 m per frame against the scene, which a frame-to-frame solve
-absorbed as ego-motion (ATE 0.37 m); over several frames its disagreement grows past the
-inlier thresholds, and the dynamic detectors see it.
+- `track_reference` (ORB-SLAM's "track with motion model"): the motion model's prediction
+  (`motion_model`) seeds a guided search against the reference frame (`reference`); mismatch
+  filters, dynamic labels and a pose-only solve follow (`reference_tracking`).
+- `track_local_map` (with a map, ``mapping.enabled``): that pose (or the prediction) is the
+  first estimate of tracking the local map (`local_map`), whose pose is the frame's.
+- `relocalise`: a frame whose guided pose is suspect is posed again without the prior
+  (`relocalisation`), and the better of the two is kept (below).
+- `need_new_keyframe`: whether the tracked frame becomes a keyframe (`pld_slam.keyframes`).
+
+The state a frame leaves (OK: tracked normally; RECOVERED; LOST) is reported as its
+`TrackingStatus` (TRACKED, RECOVERED, LOST), and decides whether the motion model is
+trusted for the next frame. The tracker reads the map
+and never changes it: what it saw goes back to local mapping in `TrackedFrame`.
+
+Reference frame (`reference`): a frame a few frames back, renewed when worn, after a
+failure, after a recovered pose, and with a map at every keyframe (`use_keyframe`).
 
 Tracking failure. The paper does not say what happens when a frame cannot be tracked.
 With a map, a frame whose guided search had to widen its window (the prediction was
@@ -60,35 +58,21 @@ from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.frontend.ggs import ggs_distance
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, nearest_pose, transform_points
+from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
 from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
-from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
-from pld_slam.matching.observations import line_observations, point_observations
-from pld_slam.matching.prior_free import pose_without_prior
-from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
-from pld_slam.optim.pose_only import (
-    PoseOnlyOptions,
-    PoseOnlyResult,
-    optimize_pose,
-    optimize_pose_rejecting_outliers,
-)
+from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.timing import StageClock
-from pld_slam.tracking.dynamic import DynamicLabels, dynamic_grid, dynamic_llg, predict_stereo_with_depth_sigma
-from pld_slam.tracking.local_map import (
-    LocalMap,
-    LocalMapTracking,
-    ReferenceMatches,
-    gather_local_map,
-    track_local_map,
-)
+from pld_slam.tracking.dynamic import DynamicLabels
+from pld_slam.tracking.local_map import LocalMap, LocalMapTracking, gather_local_map
+from pld_slam.tracking.local_map import track_local_map as track_against_local_map
+from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
-from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
-from pld_slam.tracking.relocalisation import keyframes_by_similarity
+from pld_slam.tracking.reference import DynamicIndices, LandmarkIds, ReferenceFrame, can_be_reference
+from pld_slam.tracking.reference_tracking import ReferenceTracker, ReferenceTracking, TrackingCounts, detectors_on
+from pld_slam.tracking.relocalisation import Relocalised, candidate_local_maps, track_from_scratch
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
-from pld_slam.tracking.static_world import motion_model_distance, static_world_solution
 
 
 class TrackingStatus(enum.Enum):
@@ -104,24 +88,46 @@ class TrackingStatus(enum.Enum):
     """Too few inliers: the motion model's prediction is kept."""
 
 
-@dataclass(frozen=True)
-class TrackingCounts:
-    """What survived each step of tracking one frame (points, lines).
+class TrackingState(enum.Enum):
+    """Where tracking stands after the last frame: it decides what runs for the next one.
 
-    ``point_inliers`` / ``line_inliers`` count the inliers against the reference frame,
-    ``map_point_inliers`` / ``map_line_inliers`` those against the local map.
+    ORB-SLAM's tracking state (not initialised, OK, recently lost, lost) in our terms: a frame
+    is always posed (its prediction when nothing else), so what the state decides is whether
+    the next frame is the first, and whether the motion model is trusted (`motion_trusted`):
+    only after a frame tracked normally. A trusted prediction is the static world's motion
+    where movers pull the solve (`static_world`), a local-map pose it predicted is not posed
+    again from scratch, and a pose from scratch must lie no farther from it than the guided
+    one (`Tracker.relocalise`).
     """
 
-    point_matches: int = 0
-    line_matches: int = 0
-    points_after_filter: int = 0
-    lines_after_filter: int = 0
-    dynamic_points: int = 0
-    dynamic_lines: int = 0
-    point_inliers: int = 0
-    line_inliers: int = 0
-    map_point_inliers: int = 0
-    map_line_inliers: int = 0
+    NOT_INITIALISED = "not initialised"
+    """No frame yet: the next one is the first, and defines the world."""
+    INITIALISED = "initialised"
+    """The last frame was the first: no motion known yet (the model predicts standing still)."""
+    OK = "ok"
+    """The last frame was tracked with the prior, against the reference frame and the local map."""
+    RECOVERED = "recovered"
+    """The last frame was posed without the prior (`relocalisation`): its motion says little of the next."""
+    LOST = "lost"
+    """The last frame kept the motion model's prediction, or was skipped."""
+
+    @property
+    def motion_trusted(self) -> bool:
+        """Whether the motion model's prediction of the next frame can be relied on: after a frame tracked normally."""
+        return self is TrackingState.OK
+
+    @property
+    def status(self) -> TrackingStatus:
+        """The `TrackingStatus` reported for the frame that left this state."""
+        return _STATUS[self]
+
+
+_STATUS = {
+    TrackingState.INITIALISED: TrackingStatus.FIRST,
+    TrackingState.OK: TrackingStatus.TRACKED,
+    TrackingState.RECOVERED: TrackingStatus.RECOVERED,
+    TrackingState.LOST: TrackingStatus.LOST,
+}
 
 
 @dataclass(frozen=True)
@@ -161,40 +167,15 @@ class TrackedFrame:
     line_rejected: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
 
-@dataclass(frozen=True)
-class _FrameMatches:
-    points: FrameMatches
-    lines: FrameMatches
-
-
-@dataclass(frozen=True)
-class _LandmarkIds:
-    """The map landmark of each of a frame's stereo points (P,) and lines (L,), ``-1`` for none."""
-
-    points: np.ndarray
-    lines: np.ndarray
-
-    @classmethod
-    def none(cls, features: StereoFeatures) -> "_LandmarkIds":
-        """No landmark for any stereo point or line of ``features``."""
-        return cls(np.full(len(features.points), -1), np.full(len(features.lines), -1))
-
-    @classmethod
-    def of(cls, features: StereoFeatures, point_ids: np.ndarray, line_ids: np.ndarray) -> "_LandmarkIds":
-        """From ids over all left keypoints (P_all,), stereo points first, and over the lines (L,)."""
-        return cls(point_ids[: len(features.points)].copy(), line_ids.copy())
-
-
-@dataclass(frozen=True)
-class _DynamicIndices:
-    """Indices of a frame's points (P,) and lines (L,) found dynamic."""
-
-    points: np.ndarray
-    lines: np.ndarray
-
-
 class Tracker:
-    """Stereo point-line tracking against a reference frame and, given a map, its local map."""
+    """Stereo point-line tracking against a reference frame and, given a map, its local map.
+
+    Parameters
+    ----------
+    camera : the rectified stereo camera.
+    config : the run's configuration.
+    world_map : the map to track against (None: the reference frame only, visual odometry).
+    """
 
     def __init__(self, camera: StereoCamera, config: Config, world_map: Map | None = None) -> None:
         self._camera = camera
@@ -208,16 +189,10 @@ class Tracker:
             use_line_vertical=config.lines.vertical_error,
             use_line_horizontal=config.lines.horizontal_error,
         )
-        self._reference: StereoFeatures | None = None
-        self._reference_landmarks: _LandmarkIds | None = None
-        self._T_w_r = np.eye(4)
-        self._reference_age = 0
-        self._reference_inliers = 0
-        self._seen_dynamic_points = np.zeros(0, dtype=bool)
-        self._seen_dynamic_lines = np.zeros(0, dtype=bool)
-        self._T_w_p = np.eye(4)
-        self._velocity = np.eye(4)
-        self._prior_trusted = False
+        self._reference_tracker = ReferenceTracker(camera, config, self._pose_options)
+        self._reference: ReferenceFrame | None = None
+        self._motion = MotionModel()
+        self._state = TrackingState.NOT_INITIALISED
 
     def track(
         self,
@@ -236,63 +211,23 @@ class Tracker:
         keypoint without a stereo match for another depth (`pld_slam.tracking.see_through`,
         ``mapping.see_through``).
         """
-        if self._reference is None:
+        if self._state is TrackingState.NOT_INITIALISED:
             return self._first_frame(features, moving_mask)
         clock = StageClock()
-        T_c_r_predicted = self._predicted_T_c_w() @ self._T_w_r
-        matched, widened = self._match(self._reference, features, T_c_r_predicted)
-        clock.lap("matching")
-        kept = self._filter(self._reference, features, matched)
-        clock.lap("filters")
-        reference = self._reference
-        points = point_observations(
-            reference.points.points_c[kept.points.previous], features.points, kept.points.current,
-            self._config.points,
-        )
-        lines = line_observations(
-            self._camera, reference.lines.endpoints_c[kept.lines.previous], features.lines, kept.lines.current,
-            self._config,
-        )
-        if moving_mask is None:
-            solution = optimize_pose_rejecting_outliers(
-                self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options
-            )
-            clock.lap("pose")
-            solution, labels = self._detect_dynamic(features, kept, points, lines, solution, T_c_r_predicted, widened)
-            solution = self._without_dynamic(solution, points, lines, labels)
-        else:
-            labels = _labels_from_mask(features, kept, moving_mask)
-            solution = optimize_pose_rejecting_outliers(
-                self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options,
-                within=_static_observations(labels),
-            )
-            clock.lap("pose")
-        clock.lap("dynamic")
-        point_dynamic, line_dynamic = _dynamic_features(features, kept, labels)
-        counts = _counts(matched, kept, labels, solution)
-        min_inliers = self._config.tracking.min_inliers
-        tracked = solution.success and counts.point_inliers + counts.line_inliers >= min_inliers
-        tracked_by_reference = tracked
-        T_w_c = self._T_w_r @ inverse(solution.T_c_w) if tracked else self._predicted_T_w_c()
-        map_tracking = None
-        recovered = False
+        guided = self.track_reference(features, moving_mask, clock)
+        state = TrackingState.OK if guided.tracked else TrackingState.LOST
+        T_w_c = guided.T_w_c if guided.tracked else self._motion.predicted_T_w_c()
+        counts, map_tracking = guided.counts, None
         if self._local_map is not None:
-            map_tracking = track_local_map(
-                self._camera, inverse(T_w_c), self._local_map, features, point_dynamic, line_dynamic,
-                self._config, self._pose_options, self._reference_matches(kept, solution, labels),
-                check_static_world=moving_mask is None and self._detectors_on and tracked and not widened,
-            )
-            suspect = widened or not (tracked and self._map_tracked(map_tracking)) or self._tracks_few(map_tracking)
-            if suspect and not self._predicted(map_tracking, widened):
-                proposal = self._track_without_prior(features, point_dynamic, line_dynamic)
-                if proposal is not None:
-                    from_scratch, its_local_map = proposal
-                    if self._better_from_scratch(from_scratch, map_tracking, widened):
-                        map_tracking, recovered = from_scratch, True
-                        self._use_local_map(its_local_map)
+            map_tracking = self.track_local_map(features, guided, T_w_c, moving_mask)
+            relocalised = self.relocalise(features, guided, map_tracking)
+            if relocalised is not None:
+                map_tracking = relocalised.tracking
+                self._use_local_map(relocalised.local_map)
             clock.lap("local_map")
-            if self._map_tracked(map_tracking):
-                T_w_c, tracked = inverse(map_tracking.solution.T_c_w), True
+            if map_tracking.posed(self._config.tracking.min_inliers):
+                T_w_c = inverse(map_tracking.solution.T_c_w)
+                state = TrackingState.OK if relocalised is None else TrackingState.RECOVERED
                 if images is not None and self._config.mapping.see_through:
                     map_tracking = self._with_stereo_evidence(map_tracking, features, *images)
             clock.lap("see_through")
@@ -301,24 +236,66 @@ class Tracker:
                 map_point_inliers=int(np.count_nonzero(map_tracking.point_ids >= 0)),
                 map_line_inliers=int(np.count_nonzero(map_tracking.line_ids >= 0)),
             )
-        T_w_c, T_c_p = self._advance(T_w_c)
+        T_w_c, T_c_p = self._motion.advance(T_w_c)
         landmarks = (
-            _LandmarkIds.none(features) if map_tracking is None
-            else _LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
+            LandmarkIds.none(features) if map_tracking is None
+            else LandmarkIds.of(features, map_tracking.point_ids, map_tracking.line_ids)
         )
-        self._update_reference(features, T_w_c, tracked, counts, kept, labels, landmarks, renew=recovered)
-        status = _status(tracked, recovered)
-        self._prior_trusted = status is TrackingStatus.TRACKED
-        keyframe = self._decide_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
-        from_reference = tracked_by_reference and status is TrackingStatus.TRACKED
-        rejected = _rejected_features(features, kept, solution, labels, from_reference)
-        return TrackedFrame(T_w_c.copy(), T_c_p, status, counts, clock.laps, labels, map_tracking, keyframe,
-                            point_dynamic, line_dynamic, *rejected)
+        self._update_reference(features, T_w_c, state, guided, landmarks)
+        self._state = state
+        tracked = state is not TrackingState.LOST
+        keyframe = self.need_new_keyframe(features, map_tracking) if tracked and map_tracking is not None else None
+        rejected = guided.rejected_features(features, pose_taken=guided.tracked and state is TrackingState.OK)
+        return TrackedFrame(T_w_c.copy(), T_c_p, state.status, counts, clock.laps, guided.labels, map_tracking,
+                            keyframe, guided.point_dynamic, guided.line_dynamic, *rejected)
 
-    @property
-    def _detectors_on(self) -> bool:
-        """Whether either dynamic detector is switched on."""
-        return self._config.dynamic.grid or self._config.dynamic.llg
+    def track_reference(
+        self, features: StereoFeatures, moving_mask: np.ndarray | None = None, clock: StageClock | None = None
+    ) -> ReferenceTracking:
+        """Strategy "track reference": the frame with ``features`` against the reference frame, from the
+        motion model's prediction, trusted as the state says (`reference_tracking`). Changes nothing."""
+        return self._reference_tracker.track(self._reference, features, self._motion, self._state.motion_trusted,
+                                             moving_mask, clock)
+
+    def track_local_map(
+        self, features: StereoFeatures, guided: ReferenceTracking, T_w_c: np.ndarray,
+        moving_mask: np.ndarray | None = None,
+    ) -> LocalMapTracking:
+        """Strategy "track local map": the frame tracked against the local map from ``T_w_c`` (4, 4, camera
+        to world: the reference's pose, else the prediction), with the inlier static matches of
+        ``guided`` passed on (`local_map`). The static world is checked there when the detectors
+        judged the frame and the guided search found it where predicted. Changes nothing."""
+        return track_against_local_map(
+            self._camera, inverse(T_w_c), self._local_map, features, guided.point_dynamic, guided.line_dynamic,
+            self._config, self._pose_options,
+            self._reference.map_matches(guided.kept, guided.solution, guided.labels, self._map),
+            check_static_world=moving_mask is None and detectors_on(self._config) and guided.tracked
+            and not guided.widened,
+        )
+
+    def relocalise(
+        self, features: StereoFeatures, guided: ReferenceTracking, map_tracking: LocalMapTracking
+    ) -> Relocalised | None:
+        """Strategy "relocalise": the pose found without the prior that replaces ``map_tracking``, or None.
+
+        The frame is posed again without the prior (`relocalisation`) when its guided pose is
+        suspect: the guided search widened, the reference or the local map gave no pose, or the
+        frame tracks few landmarks (`_tracks_few`); but not when the local map confirmed the pose a
+        trusted motion model predicted (`_predicted`). The proposal replaces the guided pose when
+        `_better_from_scratch`. Changes nothing: `track` takes the proposal (module docstring).
+        """
+        widened = guided.widened
+        posed = map_tracking.posed(self._config.tracking.min_inliers)
+        suspect = widened or not (guided.tracked and posed) or self._tracks_few(map_tracking)
+        if not suspect or self._predicted(map_tracking, widened):
+            return None
+        candidates = candidate_local_maps(self._map, self._local_map, self._reference_keyframe.id,
+                                          features.place_ggs, self._config)
+        proposal = track_from_scratch(self._camera, candidates, features, guided.point_dynamic, guided.line_dynamic,
+                                      self._config, self._pose_options)
+        if proposal is None or not self._better_from_scratch(proposal.tracking, map_tracking, widened):
+            return None
+        return proposal
 
     def _first_frame(self, features: StereoFeatures, moving_mask: np.ndarray | None) -> TrackedFrame:
         """The first frame: the world (``T_w_c = I``) and the first keyframe. Without a motion
@@ -328,8 +305,9 @@ class Tracker:
             line_dynamic = np.zeros(len(features.lines), dtype=bool)
         else:
             point_dynamic, line_dynamic = features_on_mask(features.keypoints.uv, features.lines.endpoints, moving_mask)
-        self._set_reference(features, np.eye(4), _DynamicIndices(np.flatnonzero(point_dynamic),
-                                                                 np.flatnonzero(line_dynamic)))
+        dynamic = DynamicIndices(np.flatnonzero(point_dynamic), np.flatnonzero(line_dynamic))
+        self._reference = ReferenceFrame(features, np.eye(4), dynamic)
+        self._state = TrackingState.INITIALISED
         first_keyframe = KeyframeReason.FIRST if self._map is not None else None
         return TrackedFrame(np.eye(4), np.eye(4), TrackingStatus.FIRST, keyframe=first_keyframe,
                             point_dynamic=point_dynamic, line_dynamic=line_dynamic,
@@ -354,21 +332,9 @@ class Tracker:
         """How far the local map's pose lies from the motion model's prediction, in units of the model's
         expected error (`static_world.motion_model_distance`); None when the model is not trusted (the
         last frame not tracked normally, or this frame's guided search widened) or the map gave no pose."""
-        if widened or not self._prior_trusted or not self._map_tracked(map_tracking):
+        if widened or not self._state.motion_trusted or not map_tracking.posed(self._config.tracking.min_inliers):
             return None
-        return motion_model_distance(map_tracking.solution.T_c_w, self._predicted_T_c_w(), self._config)
-
-    def _predicted_T_w_c(self) -> np.ndarray:
-        """The motion model's pose (4, 4) of the frame after the previous one, camera to world."""
-        return self._T_w_p @ inverse(self._velocity)
-
-    def _predicted_T_c_w(self) -> np.ndarray:
-        """The same pose, world to camera (4, 4)."""
-        return self._velocity @ inverse(self._T_w_p)
-
-    def _map_tracked(self, map_tracking: LocalMapTracking) -> bool:
-        """Whether tracking the local map gave a pose (a converged solve on ``min_inliers`` landmarks)."""
-        return map_tracking.solution.success and map_tracking.tracked_landmarks >= self._config.tracking.min_inliers
+        return self._motion.distance(map_tracking.solution.T_c_w, self._config)
 
     def _with_stereo_evidence(self, map_tracking: LocalMapTracking, features: StereoFeatures, left: np.ndarray,
                               right: np.ndarray) -> LocalMapTracking:
@@ -392,37 +358,6 @@ class Tracker:
         established = _established_landmarks(self._map, self._reference_keyframe)
         return map_tracking.tracked_landmarks < self._config.keyframes.min_tracked_ratio * established
 
-    def _track_without_prior(
-        self, features: StereoFeatures, point_dynamic: np.ndarray, line_dynamic: np.ndarray
-    ) -> tuple[LocalMapTracking, LocalMap] | None:
-        """The local map tracked from a pose found without the motion model (`relocalisation`), and
-        the local map it was tracked against; None when none gave a pose.
-
-        First against the local map of the reference keyframe; failing that, against the
-        local maps of the keyframes most similar by GGS (relocalisation). A frame without a
-        GGS (not computed) skips the second. The tracker switches to the local map only if it
-        takes the pose (`_use_local_map`).
-        """
-        candidates = [self._local_map]
-        if features.place_ggs is not None:
-            limit = self._config.tracking.relocalisation_keyframes
-            for keyframe in keyframes_by_similarity(self._map, features.place_ggs, limit):
-                if keyframe != self._reference_keyframe.id:
-                    candidates.append(gather_local_map(self._map, keyframe, self._config.mapping.tracking_keyframes))
-        for local_map in candidates:
-            points = local_map.points
-            pose = pose_without_prior(self._camera, features.keypoints, points.geometry, points.descriptors,
-                                      self._config)
-            if pose is None:
-                continue
-            tracking = track_local_map(
-                self._camera, pose.T_c_w, local_map, features, point_dynamic, line_dynamic, self._config,
-                self._pose_options, ReferenceMatches.empty(),
-            )
-            if self._map_tracked(tracking):
-                return tracking, local_map
-        return None
-
     def _use_local_map(self, local_map: LocalMap) -> None:
         """Track against ``local_map`` from now on; when it is another keyframe's (relocalisation),
         that keyframe becomes the reference keyframe."""
@@ -430,46 +365,20 @@ class Tracker:
             self._local_map = local_map
             self._reference_keyframe = self._map.keyframes[local_map.keyframes[0]]
 
-    def _reference_matches(
-        self, kept: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels
-    ) -> ReferenceMatches:
-        """The inlier, static matches of the reference solve, the reference side in the world frame.
+    @property
+    def reference(self) -> ReferenceFrame | None:
+        """The frame the next frame is matched against (None before the first frame)."""
+        return self._reference
 
-        A reference feature that observes a live landmark passes it on (`ReferenceMatches`):
-        its world side is the landmark's position.
-        """
-        if not solution.success:
-            return ReferenceMatches.empty()
-        reference = self._reference
-        points = solution.inliers.points & ~labels.point_dynamic
-        lines = solution.inliers.lines & ~labels.line_dynamic
-        previous_points, previous_lines = kept.points.previous[points], kept.lines.previous[lines]
-        segments = reference.lines.endpoints_c[previous_lines].reshape(-1, 3)
-        points_w = transform_points(self._T_w_r, reference.points.points_c[previous_points])
-        lines_w = transform_points(self._T_w_r, segments).reshape(-1, 2, 3)
-        point_landmarks = self._live_reference_landmarks(self._map.points, self._reference_landmarks.points,
-                                                         previous_points, points_w)
-        line_landmarks = self._live_reference_landmarks(self._map.lines, self._reference_landmarks.lines,
-                                                        previous_lines, lines_w)
-        return ReferenceMatches(
-            points_w=points_w,
-            point_index=kept.points.current[points],
-            lines_w=lines_w,
-            line_index=kept.lines.current[lines],
-            point_landmarks=point_landmarks,
-            line_landmarks=line_landmarks,
-        )
+    @property
+    def motion_model(self) -> MotionModel:
+        """The constant-velocity model that predicts the next frame."""
+        return self._motion
 
-    @staticmethod
-    def _live_reference_landmarks(
-        kind: Landmarks, reference_ids: np.ndarray, previous: np.ndarray, geometry_w: np.ndarray
-    ) -> np.ndarray:
-        """The live landmark (K,) of reference features ``previous`` (K,), -1 for none; where there is one,
-        its row of ``geometry_w`` (K, ...) becomes the landmark's position (in place)."""
-        ids = reference_ids[previous]
-        live = kind.live(ids)
-        geometry_w[live] = kind.geometry[ids[live]]
-        return np.where(live, ids, -1)
+    @property
+    def state(self) -> TrackingState:
+        """Where tracking stands after the last frame (`TrackingState`)."""
+        return self._state
 
     @property
     def reference_keyframe_id(self) -> int | None:
@@ -485,13 +394,15 @@ class Tracker:
         self._reference_keyframe = keyframe
         self._frames_since_keyframe = 0
         self._local_map = gather_local_map(self._map, keyframe.id, self._config.mapping.tracking_keyframes)
-        self._T_w_p = keyframe.T_w_c
-        dynamic = _DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
-        landmarks = _LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
-        self._set_reference(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
+        self._motion.T_w_p = keyframe.T_w_c
+        dynamic = DynamicIndices(np.flatnonzero(keyframe.point_dynamic), np.flatnonzero(keyframe.line_dynamic))
+        landmarks = LandmarkIds.of(keyframe.features, keyframe.point_ids, keyframe.line_ids)
+        self._reference = ReferenceFrame(keyframe.features, keyframe.T_w_c, dynamic, landmarks)
 
-    def _decide_keyframe(self, features: StereoFeatures, map_tracking: LocalMapTracking) -> KeyframeReason | None:
-        """Whether the tracked frame becomes a keyframe (`pld_slam.keyframes`)."""
+    def need_new_keyframe(self, features: StereoFeatures, map_tracking: LocalMapTracking) -> KeyframeReason | None:
+        """Strategy "need new keyframe": why the frame with ``features``, tracked against the local map as
+        ``map_tracking``, becomes a keyframe, or None (`pld_slam.keyframes`); counts the frame since the
+        last keyframe."""
         keyframe = self._reference_keyframe
         self._frames_since_keyframe += 1
         ggs = 0.0 if features.ggs is None else ggs_distance(features.ggs, keyframe.ggs)
@@ -502,230 +413,45 @@ class Tracker:
             reference_landmarks=_established_landmarks(self._map, keyframe),
         ))
 
-    def _advance(self, T_w_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The frame's ``T_w_c`` (re-projected onto SE(3)) and the motion ``T_c_p`` from the last frame.
-
-        Both become the tracker's state: the last pose and the motion model.
-        """
-        T_w_c = nearest_pose(T_w_c)
-        T_c_p = nearest_pose(inverse(T_w_c) @ self._T_w_p)
-        self._velocity, self._T_w_p = T_c_p, T_w_c
-        return T_w_c, T_c_p
-
     def _update_reference(
-        self,
-        features: StereoFeatures,
-        T_w_c: np.ndarray,
-        tracked: bool,
-        counts: TrackingCounts,
-        kept: _FrameMatches,
-        labels: DynamicLabels,
-        landmarks: _LandmarkIds,
-        renew: bool,
+        self, features: StereoFeatures, T_w_c: np.ndarray, state: TrackingState, guided: ReferenceTracking,
+        landmarks: LandmarkIds,
     ) -> None:
-        """Record the dynamic features seen, age the reference, and renew it when worn, after a failure,
-        or when ``renew`` (a pose recovered without the prior: the reference's matches are not to be trusted).
+        """Record the dynamic features the frame found on the reference, age it, and renew it (the frame at
+        ``T_w_c``, with its ``landmarks``, becomes the reference) as the frame's ``state`` says: when worn
+        after a frame tracked normally or recovered; always after a recovered one (the reference's
+        matches are not to be trusted); after a lost one, if the frame can be a reference.
 
         After a failure the reference is the failed frame itself (at its motion-model
         pose) if it has features enough to be tracked against (`can_be_reference`):
         tracking goes on from the newest features, which is how it recovers from a wrong
         prediction. A frame without them (blank, blinded) keeps the old reference.
         """
-        self._seen_dynamic_points[kept.points.previous[labels.point_dynamic]] = True
-        self._seen_dynamic_lines[kept.lines.previous[labels.line_dynamic]] = True
+        counts, kept, labels = guided.counts, guided.kept, guided.labels
         inliers = counts.point_inliers + counts.line_inliers
-        self._reference_age += 1
-        if self._reference_age == 1:
-            self._reference_inliers = inliers
-        renew = renew or (self._reference_is_worn(inliers) if tracked else self.can_be_reference(features))
-        if renew:
-            found = _DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
-            self._set_reference(features, T_w_c, found, landmarks)
+        self._reference.record(kept, labels, inliers)
+        if state is TrackingState.LOST:
+            due = self.can_be_reference(features)
+        else:
+            due = state is TrackingState.RECOVERED or self._reference.is_worn(inliers, self._config)
+        if due:
+            found = DynamicIndices(kept.points.current[labels.point_dynamic], kept.lines.current[labels.line_dynamic])
+            self._reference = ReferenceFrame(features, T_w_c, found, landmarks)
 
     def skip(self) -> TrackedFrame:
         """Advance over a frame without images (unreadable): the motion model's pose, flagged LOST.
 
-        The reference stays, so the next frame is matched against it as usual; the motion
-        model is not trusted for it (module docstring: only after a frame tracked normally).
+        The reference stays, so the next frame is matched against it as usual; the state
+        becomes `TrackingState.LOST` (the motion model is not trusted for the next frame), but
+        before the first frame, which stays to come.
         """
-        self._prior_trusted = False
-        self._T_w_p = nearest_pose(self._predicted_T_w_c())
-        return TrackedFrame(self._T_w_p.copy(), self._velocity, TrackingStatus.LOST)
-
-    def _set_reference(
-        self,
-        features: StereoFeatures,
-        T_w_c: np.ndarray,
-        dynamic: _DynamicIndices,
-        landmarks: _LandmarkIds | None = None,
-    ) -> None:
-        """Make the frame with ``features`` at pose ``T_w_c`` the reference of the next frames.
-
-        ``dynamic`` lists the frame's features found dynamic: they stay known as dynamic
-        while it is the reference (`dynamic` module docstring). ``landmarks`` are the map
-        landmarks its features observe (none by default): frames matched to it inherit them.
-        """
-        self._reference, self._T_w_r = features, T_w_c
-        self._reference_landmarks = _LandmarkIds.none(features) if landmarks is None else landmarks
-        self._reference_age, self._reference_inliers = 0, 0
-        self._seen_dynamic_points = np.zeros(len(features.points), dtype=bool)
-        self._seen_dynamic_lines = np.zeros(len(features.lines), dtype=bool)
-        stereo = dynamic.points[dynamic.points < len(features.points)]  # the stereo points: the first keypoints
-        self._seen_dynamic_points[stereo] = True
-        self._seen_dynamic_lines[dynamic.lines] = True
+        if self._state is not TrackingState.NOT_INITIALISED:
+            self._state = TrackingState.LOST
+        return TrackedFrame(self._motion.coast().copy(), self._motion.velocity, TrackingStatus.LOST)
 
     def can_be_reference(self, features: StereoFeatures) -> bool:
-        """Whether a frame has the stereo points + lines for ``min_inliers`` twice over."""
-        return len(features.points) + len(features.lines) >= 2 * self._config.tracking.min_inliers
-
-    def _reference_is_worn(self, inliers: int) -> bool:
-        """Whether the reference is old, or keeps too few of its first inliers."""
-        cfg = self._config.tracking
-        return (
-            self._reference_age >= cfg.reference_max_age
-            or inliers < cfg.reference_min_inlier_ratio * self._reference_inliers
-        )
-
-    def _match(
-        self, reference: StereoFeatures, current: StereoFeatures, T_c_r: np.ndarray
-    ) -> tuple[_FrameMatches, bool]:
-        """Points and lines matched around the predicted pose ``T_c_r``, widening the window once if needed;
-        and whether it was (the prediction was off)."""
-        cfg = self._config.tracking
-        point_radius, line_radius = cfg.point_search_radius_px, cfg.line_search_radius_px
-        for attempt in range(2):
-            matches = _FrameMatches(
-                match_points(
-                    self._camera, T_c_r, reference.points, current.points,
-                    point_radius, self._config.points.scale_factor, cfg.max_point_distance, cfg.ratio,
-                ),
-                match_lines(
-                    self._camera, T_c_r, reference.lines, current.lines,
-                    line_radius, cfg.line_max_angle_change, cfg.max_line_distance, cfg.ratio,
-                ),
-            )
-            if len(matches.points) + len(matches.lines) >= 3 * cfg.min_inliers:
-                return matches, attempt > 0
-            point_radius *= cfg.wide_search_factor
-            line_radius *= cfg.wide_search_factor
-        return matches, True
-
-    def _filter(self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches) -> _FrameMatches:
-        """The matches that pass the enabled mismatch filters."""
-        filters = self._config.filters
-        points, lines = matches.points, matches.lines
-        if filters.point_grid:
-            keep = point_grid_filter(
-                reference.points.uv[points.previous], current.points.uv[points.current], filters
-            )
-            points = points.subset(keep)
-        if filters.line_llg:
-            keep = line_llg_filter(
-                reference.lines.endpoints[lines.previous], current.lines.endpoints[lines.current], filters
-            )
-            lines = lines.subset(keep)
-        return _FrameMatches(points, lines)
-
-    def _label_dynamic(
-        self, reference: StereoFeatures, current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult
-    ) -> DynamicLabels:
-        """Dynamic labels of the matched features, predicted with the robustly fitted pose (`dynamic`).
-
-        Nothing is dynamic when both detectors are off or the fit failed.
-        """
-        labels = DynamicLabels.none(
-            current.points.uv[matches.points.current], current.lines.endpoints[matches.lines.current]
-        )
-        if not solution.success:
-            return labels
-        if self._config.dynamic.grid:
-            dynamic_points = self._dynamic_points(reference, current, matches.points, solution.T_c_w)
-            labels = dataclasses.replace(labels, point_dynamic=dynamic_points)
-        if self._config.dynamic.llg:
-            dynamic_lines = self._dynamic_lines(reference, current, matches.lines, solution.T_c_w)
-            labels = dataclasses.replace(labels, line_dynamic=dynamic_lines)
-        return labels
-
-    def _dynamic_points(
-        self, reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, T_c_r: np.ndarray
-    ) -> np.ndarray:
-        """The dynamic grid over matched points (K,) bool, their stereo observations
-        predicted with ``T_c_r`` and judged in sigmas of the detections and the reference depth."""
-        config = self._config
-        points_r = reference.points.points_c[matches.previous]
-        detected = np.column_stack([current.points.uv, current.points.u_right])[matches.current]
-        octaves = np.column_stack([reference.points.octave[matches.previous], current.points.octave[matches.current]])
-        octave_sigma = config.points.scale_factor ** octaves.astype(np.float64)
-        disparity_sigma = config.dynamic.disparity_sigma_px * octave_sigma[:, 0]
-        predicted, depth_shift = predict_stereo_with_depth_sigma(self._camera, T_c_r, points_r, disparity_sigma)
-        sigma = np.sqrt(np.sum(octave_sigma**2, axis=1) + depth_shift**2)
-        cell_size = (config.filters.point_grid_cell_width, config.filters.point_grid_cell_height)
-        seen = self._seen_dynamic_points[matches.previous]
-        return dynamic_grid(predicted, detected, sigma, cell_size, config.dynamic, seen)
-
-    def _dynamic_lines(
-        self, reference: StereoFeatures, current: StereoFeatures, matches: FrameMatches, T_c_r: np.ndarray
-    ) -> np.ndarray:
-        """The dynamic LLG over matched lines (L,) bool, their segments predicted with ``T_c_r``."""
-        predicted, _ = predict_segments(self._camera, T_c_r, reference.lines.endpoints_c[matches.previous])
-        seen = self._seen_dynamic_lines[matches.previous]
-        return dynamic_llg(predicted, current.lines.endpoints[matches.current], self._config.dynamic, seen)
-
-    def _detect_dynamic(
-        self, features: StereoFeatures, kept: _FrameMatches, points: PointObservations, lines: LineObservations,
-        solution: PoseOnlyResult, T_c_r_predicted: np.ndarray, widened: bool,
-    ) -> tuple[PoseOnlyResult, DynamicLabels]:
-        """The robust ``solution``, or the frame solved for the static world's motion where the
-        solve is suspect (`static_world`), and the dynamic labels judged against it
-        (with the points found moving there). The motion model is trusted when the last frame
-        was tracked normally and this one's guided search did not have to widen. Both detectors
-        off: ``solution`` and no labels."""
-        moving = np.zeros(len(points.sigma_px), dtype=bool)
-        if solution.success and self._detectors_on:
-            static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
-                                           self._prior_trusted and not widened, self._pose_options, self._config)
-            solution, moving = static.solution, static.moving
-        labels = self._label_dynamic(self._reference, features, kept, solution)
-        return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | moving)
-
-    def _without_dynamic(
-        self, solution: PoseOnlyResult, points: PointObservations, lines: LineObservations, labels: DynamicLabels
-    ) -> PoseOnlyResult:
-        """``solution`` refined without the dynamic features: one plain least-squares solve
-        from it over its inliers less the dynamic ones (the first solve's robust loss and
-        rejection rounds have done the rest); ``solution`` itself when nothing is dynamic."""
-        if not (labels.point_dynamic.any() or labels.line_dynamic.any()):
-            return solution
-        include = solution.inliers & _static_observations(labels)
-        refined = optimize_pose(
-            self._camera, solution.T_c_w, points=points, lines=lines, options=self._pose_options,
-            include=include, robust=False,
-        )
-        if not refined.success:
-            return solution
-        inliers = refined.inliers & include
-        return dataclasses.replace(refined, inliers=inliers)
-
-
-def _status(tracked: bool, recovered: bool) -> TrackingStatus:
-    """LOST when not tracked, RECOVERED when posed without the prior, else TRACKED."""
-    if not tracked:
-        return TrackingStatus.LOST
-    return TrackingStatus.RECOVERED if recovered else TrackingStatus.TRACKED
-
-
-def _dynamic_features(
-    current: StereoFeatures, matches: _FrameMatches, labels: DynamicLabels
-) -> tuple[np.ndarray, np.ndarray]:
-    """The current frame's keypoints (P_all,) and lines (L,) labelled dynamic, as bool masks over all of them.
-
-    The labels are on stereo points, which are the first keypoints (same indices).
-    """
-    points = np.zeros(len(current.keypoints), dtype=bool)
-    points[matches.points.current[labels.point_dynamic]] = True
-    lines = np.zeros(len(current.lines), dtype=bool)
-    lines[matches.lines.current[labels.line_dynamic]] = True
-    return points, lines
+        """Whether a frame has the stereo points + lines for ``min_inliers`` twice over (`reference`)."""
+        return can_be_reference(features, self._config)
 
 
 def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
@@ -746,46 +472,3 @@ def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
         ids = ids[kind.live(ids)]
         count += int(np.count_nonzero(kind.n_observers[ids] >= min_observers))
     return count
-
-
-def _rejected_features(
-    current: StereoFeatures, matches: _FrameMatches, solution: PoseOnlyResult, labels: DynamicLabels,
-    from_reference: bool,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The current frame's keypoints (P_all,) and lines (L,) matched to the reference that ``solution``
-    rejected and that are not labelled dynamic; none unless the pose came ``from_reference``."""
-    points = np.zeros(len(current.keypoints), dtype=bool)
-    lines = np.zeros(len(current.lines), dtype=bool)
-    if from_reference and solution.success:
-        points[matches.points.current[~solution.inliers.points & ~labels.point_dynamic]] = True
-        lines[matches.lines.current[~solution.inliers.lines & ~labels.line_dynamic]] = True
-    return points, lines
-
-
-def _static_observations(labels: DynamicLabels) -> ObservationMasks:
-    """The observations of the matched features not labelled dynamic."""
-    return ObservationMasks(~labels.point_dynamic, ~labels.line_dynamic, ~labels.line_dynamic)
-
-
-def _labels_from_mask(current: StereoFeatures, matches: _FrameMatches, moving_mask: np.ndarray) -> DynamicLabels:
-    """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
-    point_uv = current.points.uv[matches.points.current]
-    segments = current.lines.endpoints[matches.lines.current]
-    point_dynamic, line_dynamic = features_on_mask(point_uv, segments, moving_mask)
-    return DynamicLabels(point_uv, point_dynamic, segments, line_dynamic)
-
-
-def _counts(
-    matched: _FrameMatches, kept: _FrameMatches, labels: DynamicLabels, solution: PoseOnlyResult
-) -> TrackingCounts:
-    """What survived each step against the reference frame (`TrackingCounts`; no map counts yet)."""
-    return TrackingCounts(
-        point_matches=len(matched.points),
-        line_matches=len(matched.lines),
-        points_after_filter=len(kept.points),
-        lines_after_filter=len(kept.lines),
-        dynamic_points=int(np.count_nonzero(labels.point_dynamic)),
-        dynamic_lines=int(np.count_nonzero(labels.line_dynamic)),
-        point_inliers=int(np.count_nonzero(solution.inliers.points)),
-        line_inliers=int(np.count_nonzero(solution.inliers.lines)),
-    )
