@@ -5,7 +5,8 @@ Layout::
     OUT/ablation.json                  the suite, its variants and sequences in table order
     OUT/groundtruth/SEQUENCE.tum.txt   each sequence's ground truth (for the plots)
     OUT/cells/SEQUENCE/VARIANT/        the run's files (trajectories, summary.json, ...)
-                              ate.zip    evo's result file of its ATE (``evo_res OUT/cells/*/*/ate.zip``)
+                              ate.zip    evo's result file of its ATE (``evo_res OUT/cells/*/*/ate.zip``),
+                                         where the ground truth is kept (ablate's, not regress's)
                               cell.json  the cell's row, written last
 
 ``cell.json`` is written after the run's files, by a rename, so a cell with one is
@@ -80,7 +81,7 @@ def record_cell(out: Path, spec: CellSpec, outcome: CellOutcome) -> dict:
     for name, content in outcome.files.items():
         (folder / name).write_bytes(content)
     summary = json.loads(outcome.files["summary.json"]) if "summary.json" in outcome.files else None
-    if summary is not None and summary["ate_rmse_m"] is not None:
+    if summary is not None and summary["ate_rmse_m"] is not None and groundtruth_path(out, spec.sequence).is_file():
         write_ate_result(out, spec, folder)
     row = cell_row(spec, outcome, summary)
     scratch = folder / (CELL_FILE + ".part")
