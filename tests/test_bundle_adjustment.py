@@ -279,6 +279,18 @@ def test_a_jacobian_evaluated_in_chunks_of_rows_is_the_one_evaluated_at_once(sma
     np.testing.assert_array_equal(in_chunks.jacobian(y).toarray(), at_once.jacobian(y).toarray())
 
 
+def test_the_solver_s_jacobians_share_one_buffer_and_an_old_one_used_raises(small_street):
+    problem = perturbed_problem(small_street, SMALL_FIXED[1], seed=4)
+    solver_problem, fresh = sparse_problem(problem, some_rows(problem)), sparse_problem(problem, some_rows(problem))
+    start, moved = np.zeros(solver_problem.n_unknowns), np.random.default_rng(5).normal(0.0, 2.0, fresh.n_unknowns)
+    vector = np.random.default_rng(6).normal(size=solver_problem.n_unknowns)
+    first = solver_problem.jacobian_operator(start)
+    second = solver_problem.jacobian_operator(moved)  # written over the first's values
+    np.testing.assert_allclose(second.matvec(vector), fresh.jacobian(moved) @ vector, rtol=1e-12, atol=1e-12)
+    with pytest.raises(RuntimeError, match="after asking for the next one"):
+        first.matvec(vector)
+
+
 def test_the_start_jacobian_handed_to_the_solver_is_the_one_evaluated_afresh_there(small_street):
     problem = perturbed_problem(small_street, SMALL_FIXED[1], seed=3)
     solver_problem = sparse_problem(problem, some_rows(problem))

@@ -41,11 +41,11 @@ its rows' Jacobians at its start, hands that matrix to the solver and drops them
 later Jacobians are evaluated `JACOBIAN_CHUNK_ROWS` rows at a time; the rows are
 evaluated from their pose and world point indices and axes made once per problem
 (`_BundleRows`), a solve keeps the indices of its rows rather than copies of them, and
-the CSR structure and column norms are filled by kernels without (R, 9) temporaries.
-The same solve peaks at 432 MB over the map resident (597 before; traced by Python 523
--> 376 MB), with the same evaluations and cost, and KITTI 06's trajectory is the same to
-the byte. What is left at the peak is the solver's: its Jacobian and the next one (scipy
-holds the first while the second is made), their column indices, its vectors.
+the CSR structure and column norms are filled by kernels without (R, 9) temporaries, and
+each Jacobian handed to the solver is written over the one before
+(`_SparseProblem.jacobian_operator`). The same solve peaks at 382 MB over the map
+resident (597 before; traced by Python 523 -> 328 MB), with the same evaluations and
+cost, and KITTI 06's trajectory is the same to the byte.
 
 Speed (issue 8). Measured on 12 local BA problems saved from a KITTI 06 run (4,700-7,200
 observations, ~21,700 rows), old and new code alternated on each, 7 times, median per
@@ -454,6 +454,10 @@ class _SparseProblem:
             _held_directions(start, pinned),
         )
         self._cached_y, self._cached_residual = np.zeros(self.n_unknowns), at_start.residual
+        self._solver_values: np.ndarray | None = None
+        """The values (nnz,) of the last Jacobian handed to the solver, written over by the next
+        (`jacobian_operator`)."""
+        self._solver_generation = 0
         self._jacobian_at_start: csr_matrix | None = self._jacobian_of(at_start, np.zeros(self.n_unknowns))
         """Handed to the solver's first Jacobian call and then dropped (memory: global BA)."""
         del at_start  # its Jacobians are in the CSR matrix now
@@ -476,14 +480,15 @@ class _SparseProblem:
             self._cached_y, self._cached_residual = np.array(y, dtype=np.float64), residual
         return self._cached_residual
 
-    def jacobian(self, y: np.ndarray) -> csr_matrix:
+    def jacobian(self, y: np.ndarray, into: np.ndarray | None = None) -> csr_matrix:
         """Sparse Jacobian (R, n_unknowns) of `residuals` w.r.t. ``y`` (`_jacobian_of`), its rows
-        evaluated `JACOBIAN_CHUNK_ROWS` at a time (memory: global BA)."""
+        evaluated `JACOBIAN_CHUNK_ROWS` at a time (memory: global BA), its values written into
+        ``into`` (nnz,) when given."""
         if self._jacobian_at_start is not None and not y.any():
             jac, self._jacobian_at_start = self._jacobian_at_start, None
             return jac
         state, pose_blocks = self.state(y), self._pose_blocks(y)
-        values = np.empty(len(self._indices))
+        values = np.empty(len(self._indices)) if into is None else into
         for rows in self._chunks():
             self._fill_values(self._evaluate(state, rows, with_jacobians=True), pose_blocks, rows,
                               values[self._indptr[rows.start]:self._indptr[rows.stop]])
@@ -499,9 +504,26 @@ class _SparseProblem:
         return self._every_row.evaluate(self._camera, state, self._min_depth, with_jacobians, self._row_ids[rows])
 
     def jacobian_operator(self, y: np.ndarray) -> LinearOperator:
-        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring)."""
-        jac = self.jacobian(y)
-        return LinearOperator(jac.shape, matvec=jac.dot, rmatvec=jac.T.dot, dtype=np.float64)
+        """`jacobian` at ``y`` as a `LinearOperator`, which `least_squares` does not copy (module docstring),
+        its values written over those of the operator before.
+
+        `least_squares` (``trf``) asks for a Jacobian only at an accepted step and never uses
+        the one before after that, so one buffer of values serves the whole solve instead of
+        two at once (memory: global BA). An operator used after the next one was made raises
+        `RuntimeError` instead of giving products of the new values.
+        """
+        jac = self.jacobian(y, into=self._solver_values)
+        self._solver_values, self._solver_generation = jac.data, self._solver_generation + 1
+        generation = self._solver_generation
+
+        def current(product):
+            def apply(vector: np.ndarray) -> np.ndarray:
+                if generation != self._solver_generation:
+                    raise RuntimeError("least_squares used a Jacobian after asking for the next one")
+                return product(vector)
+            return apply
+
+        return LinearOperator(jac.shape, matvec=current(jac.dot), rmatvec=current(jac.T.dot), dtype=np.float64)
 
     def _jacobian_of(self, evaluation: RowEvaluation, y: np.ndarray) -> csr_matrix:
         """The Jacobian w.r.t. ``y`` of every row, evaluated (with Jacobians) at ``y`` (`_fill_values`)."""
