@@ -4,8 +4,9 @@ The stages: the front end (stereo points and lines of each pair, and its GGS), t
 (against the reference frame, then the local map), and local mapping (keyframe
 insertion, landmark creation and culling, local BA), which runs inline: a keyframe's
 mapping work happens before the next frame is tracked. ``mapping.enabled: false`` leaves
-tracking alone, a visual odometry against the reference frame. Loop closure and the
-final global BA join here as they are built.
+tracking alone, a visual odometry against the reference frame. Loop closing runs after
+local mapping for each keyframe (`pld_slam.loop.loop_closing`), the final global BA at the
+end of `System.run`.
 
 With ``system.prefetch`` (the default), the next frames are read and their features
 extracted in a background worker, a forked process where that is safe, while this one is

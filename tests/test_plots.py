@@ -8,6 +8,7 @@ from trajectories import WORLD_CHANGE, drive
 from pld_slam.errors import TrajectoryError
 from pld_slam.eval import evaluate
 from pld_slam.eval.plots import (
+    comparison_top_view_figure,
     error_over_time_figure,
     plot_error_over_time,
     plot_trajectory_top_view,
@@ -48,12 +49,14 @@ def test_error_over_time_draws_the_error_curve(tmp_path):
     assert blue_pixel_count(tmp_path / "ate.png") > 500
 
 
-def test_plots_refuse_unmatched_trajectories(tmp_path):
+def test_the_error_plot_refuses_unmatched_trajectories_the_top_view_draws_them_unaligned(tmp_path):
     groundtruth = drive()
     later = Trajectory(groundtruth.timestamps + 1000.0, groundtruth.poses)
     with pytest.raises(TrajectoryError, match="no matching timestamps"):
-        plot_trajectory_top_view(tmp_path / "top.png", groundtruth, later)
-    assert not (tmp_path / "top.png").exists()
+        plot_error_over_time(tmp_path / "ate.png", groundtruth, later)  # there is no error to draw
+    assert not (tmp_path / "ate.png").exists()
+    plot_trajectory_top_view(tmp_path / "top.png", groundtruth, later)  # says "not aligned" on it
+    assert (tmp_path / "top.png").stat().st_size > 1000
 
 
 def line_labelled(axes, label: str):
@@ -89,6 +92,20 @@ def test_top_view_without_ground_truth_starts_at_the_estimate_and_claims_no_alig
     assert axes.get_title() == "estimate only"
     assert line_labelled(axes, "start").get_xydata()[0] == pytest.approx(estimate.positions[0, [0, 2]])
     line_labelled(axes, "estimate")
+
+
+def test_an_estimate_that_cannot_be_aligned_is_drawn_as_it_is_and_labelled_so_in_both_top_views():
+    groundtruth = drive()
+    elsewhere = Trajectory(groundtruth.timestamps + 1000.0, groundtruth.poses)  # no time in common
+    single = top_view_figure(groundtruth, elsewhere, title="seq").axes[0]
+    assert single.get_title().startswith("seq\nnot aligned: ")
+    assert line_labelled(single, "estimate (not aligned)").get_xydata() == pytest.approx(
+        elsewhere.positions[:, [0, 2]])
+    several = comparison_top_view_figure(groundtruth, {"a": noisy_estimate(groundtruth), "b": elsewhere}).axes[0]
+    (b_line,) = [line for line in several.get_lines() if line.get_label().startswith("b (not aligned: ")]
+    assert b_line.get_xydata() == pytest.approx(elsewhere.positions[:, [0, 2]])
+    (a_line,) = [line for line in several.get_lines() if line.get_label().startswith("a: ATE RMSE ")]
+    assert a_line.get_label().endswith("(SE(3)-aligned)")
 
 
 def test_error_over_time_labels_rows_as_rows_and_times_as_seconds():

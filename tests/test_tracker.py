@@ -1,6 +1,7 @@
 """`Tracker` against its reference frame, without a map, on a short synthetic street
-(``static``, 15 frames, 320 x 240, seed 0). Tracking the local map is tested in
-``test_local_map_tracking.py``; runs here switch mapping off.
+(``static``, 15 frames, 320 x 240, seed 0). Tracking with a map (the local map, its
+strategies, relocalisation) is tested in ``test_tracking_robustness.py`` and
+``test_local_mapping.py``; runs here switch mapping off.
 
 Accuracy: the bounds are about 2.5 times what the tracker achieved when these tests were
 written, over 11.2 m of path: ATE 0.041 m with lines (largest position error 0.14 m),
@@ -158,8 +159,10 @@ def test_tracking_recovers_after_a_frame_without_features(sequence, features, de
     poses = np.array([t.T_w_c for t in tracked])
     # Frames before the failure are exactly those of the undisturbed run.
     assert np.array_equal(poses[:FAILED], default_run.trajectory().poses[:FAILED])
-    # Frame FAILED + 1 is matched against the featureless frame (a failed frame becomes the
-    # reference), so it is left out; from FAILED + 2 on every frame must be tracked again.
+    # The featureless frame cannot be a reference (`can_be_reference`): frame FAILED + 1 is
+    # matched against the reference before it, two frames' motion away, with the motion model
+    # no longer trusted, so its status is left out; from FAILED + 2 on every frame must be
+    # tracked again.
     assert [t.status for t in tracked[FAILED + 2 :]] == [TrackingStatus.TRACKED] * (N_FRAMES - FAILED - 2)
     assert position_errors(sequence, poses).max() < 0.4
 

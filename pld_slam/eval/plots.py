@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from pld_slam.errors import TrajectoryError
 from pld_slam.eval.metrics import associate, ate_errors, fit_alignment
 from pld_slam.trajectory import Trajectory
 
@@ -82,10 +83,13 @@ def top_view_figure(
     start_xz = estimate.positions[0, [0, 2]]
     label = "estimate"
     if groundtruth is not None:
-        title = f"{title}\n{ate_title_line(groundtruth, estimate, align, by_index, max_diff)}"
-        estimate = aligned_onto(groundtruth, estimate, align, by_index, max_diff)
         start_xz = draw_groundtruth_top_view(axes, groundtruth)
-        label = f"estimate ({ALIGNMENT_NAMES[align]})"
+        aligned, why_not = aligned_if_possible(groundtruth, estimate, align, by_index, max_diff)
+        if why_not is None:
+            title = f"{title}\n{ate_title_line(groundtruth, estimate, align, by_index, max_diff)}"
+            estimate, label = aligned, f"estimate ({ALIGNMENT_NAMES[align]})"
+        else:
+            title, label = f"{title}\nnot aligned: {why_not}", "estimate (not aligned)"
     est_xz = estimate.positions[:, [0, 2]]
     axes.plot(est_xz[:, 0], est_xz[:, 1], "b-", label=label)
     axes.plot(start_xz[0], start_xz[1], "go", zorder=GROUND_TRUTH_ZORDER + 1, label="start")
@@ -97,7 +101,7 @@ def top_view_figure(
 
 
 def comparison_top_view_figure(
-    groundtruth: Trajectory,
+    groundtruth: Trajectory | None,
     estimates: Mapping[str, Trajectory],
     title: str = "Trajectories, top view",
     align: str = "se3",
@@ -107,19 +111,38 @@ def comparison_top_view_figure(
     """The x-z plane of several estimates over their ground truth (as ``evo_traj --ref``).
 
     Each estimate (by name) is aligned onto the ground truth on its own, as its ATE is
-    (`aligned_onto`), and its legend entry gives that ATE; the ground truth is drawn as
-    in `top_view_figure`.
+    (`aligned_if_possible`), and its legend entry gives that ATE, or says that it could
+    not be aligned and why (it is then drawn as it is); the ground truth is drawn as in
+    `top_view_figure`. Without ground truth the estimates are drawn as they are.
     """
     figure = Figure(figsize=FIGURE_SIZE_IN)
     axes = figure.add_subplot()
-    start_xz = draw_groundtruth_top_view(axes, groundtruth)
+    if groundtruth is not None:
+        start_xz = draw_groundtruth_top_view(axes, groundtruth)
+        axes.plot(start_xz[0], start_xz[1], "go", zorder=GROUND_TRUTH_ZORDER + 1, label="start")
     for name, estimate in estimates.items():
-        aligned_xz = aligned_onto(groundtruth, estimate, align, by_index, max_diff).positions[:, [0, 2]]
-        axes.plot(aligned_xz[:, 0], aligned_xz[:, 1], "-",
-                  label=f"{name}: {ate_title_line(groundtruth, estimate, align, by_index, max_diff)}")
-    axes.plot(start_xz[0], start_xz[1], "go", zorder=GROUND_TRUTH_ZORDER + 1, label="start")
+        label, drawn = name, estimate
+        if groundtruth is not None:
+            drawn, why_not = aligned_if_possible(groundtruth, estimate, align, by_index, max_diff)
+            label = (f"{name} (not aligned: {why_not})" if why_not
+                     else f"{name}: {ate_title_line(groundtruth, estimate, align, by_index, max_diff)}")
+        xz = drawn.positions[:, [0, 2]]
+        axes.plot(xz[:, 0], xz[:, 1], "-", linewidth=1.2, label=label)
     finish_top_view(axes, title)
     return figure
+
+
+def aligned_if_possible(
+    groundtruth: Trajectory, estimate: Trajectory, align: str = "se3", by_index: bool = False, max_diff: float = 0.01
+) -> tuple[Trajectory, str | None]:
+    """``estimate`` aligned onto ``groundtruth`` (`aligned_onto`) and None, or, when too few of its
+    poses match the ground truth to align it, ``estimate`` as it is and why."""
+    if len(estimate) < 2:
+        return estimate, "fewer than 2 poses"
+    try:
+        return aligned_onto(groundtruth, estimate, align, by_index, max_diff), None
+    except TrajectoryError as error:
+        return estimate, str(error)
 
 
 def draw_groundtruth_top_view(axes, groundtruth: Trajectory) -> np.ndarray:

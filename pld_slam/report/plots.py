@@ -8,8 +8,7 @@ from collections.abc import Mapping
 import numpy as np
 from matplotlib.figure import Figure
 
-from pld_slam.errors import TrajectoryError
-from pld_slam.eval.plots import FIGURE_SIZE_IN, aligned_onto, finish_top_view, save_figure
+from pld_slam.eval.plots import FIGURE_SIZE_IN, comparison_top_view_figure, save_figure
 from pld_slam.report.tables import PaperTable
 from pld_slam.trajectory import Trajectory
 
@@ -20,33 +19,10 @@ many times: millimetre EuRoC bars beside decimetre KITTI ones are otherwise invi
 
 def plot_variant_trajectories(path_png, groundtruth: Trajectory | None, estimates: Mapping[str, Trajectory],
                               title: str) -> None:
-    """Top view (x-z) of each variant's estimate, aligned onto the ground truth as for the ATE.
-
-    Parameters
-    ----------
-    path_png : path
-        The PNG to write.
-    groundtruth : Trajectory or None
-        Drawn dashed; without it the estimates are drawn as they are.
-    estimates : mapping of str to Trajectory
-        Each variant's estimate (``T_w_c``), in legend order. One that cannot be aligned
-        (too few poses matched) is drawn unaligned.
-    title : str
-        The figure's title (the sequence).
-    """
-    figure = Figure(figsize=FIGURE_SIZE_IN)
-    axes = figure.add_subplot()
-    if groundtruth is not None:
-        axes.plot(groundtruth.positions[:, 0], groundtruth.positions[:, 2], "k--", label="ground truth")
-    for name, estimate in estimates.items():
-        if groundtruth is not None and len(estimate) >= 2:
-            try:
-                estimate = aligned_onto(groundtruth, estimate)
-            except TrajectoryError:
-                pass
-        axes.plot(estimate.positions[:, 0], estimate.positions[:, 2], "-", linewidth=1.2, label=name)
-    finish_top_view(axes, title)
-    save_figure(figure, path_png)
+    """Top view (x-z) of each variant's estimate (``T_w_c``, by name in legend order) over the
+    ground truth, each aligned as for its ATE, or drawn as it is and labelled so where it
+    cannot be (`pld_slam.eval.plots.comparison_top_view_figure`); ``title``: the sequence."""
+    save_figure(comparison_top_view_figure(groundtruth, estimates, title), path_png)
 
 
 def plot_ate_bars(path_png, table: PaperTable) -> None:
