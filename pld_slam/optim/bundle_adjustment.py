@@ -54,8 +54,9 @@ and final cost, poses within 5e-12 m. From the profile (cProfile, 12 problems): 
 evaluations were 35 % of the time, the Jacobian's assembly 16 %, the solver's set-up
 13 %; now the rows are one numba kernel (`pld_slam.optim.point_reprojection`), the
 Jacobian's values are filled by `_fill_jacobian_values` into int32 CSR indices, and a
-solve evaluates its rows with Jacobians once at its start for the whitening, the column
-scale and the solver's first Jacobian (each round evaluated its start twice). What remains is `least_squares` itself:
+solve evaluates its rows with Jacobians once at its start, for the whitening, the column
+scale and the solver's first Jacobian (before, each round evaluated its start twice).
+What remains is `least_squares` itself:
 LSMR's sparse products 31 %, the residuals 20 %, the Jacobian 11 %, the column norms of
 ``x_scale="jac"`` 9 % (now once per solve, above). With the unknowns block-whitened,
 ``x_scale=1.0`` needed the same nfev and moved poses by up to 11 mm (the stopping
@@ -348,10 +349,10 @@ class _BundleRows:
         return flags
 
     def evaluate(self, camera: StereoCamera, state: _State, min_depth: float,
-                 with_jacobians: bool = True, rows: slice = slice(None)) -> RowEvaluation:
-        """The rows ``rows`` (every row by default) at ``state``, without Jacobians residuals and
-        validity only: the rows of `WhitenedRows.evaluate`, each measuring its pose and world
-        point by index."""
+                 with_jacobians: bool = True, rows: slice | np.ndarray = slice(None)) -> RowEvaluation:
+        """The rows ``rows`` (a slice or row indices; every row by default) at ``state``, without
+        Jacobians residuals and validity only: the rows of `WhitenedRows.evaluate`, each
+        measuring its pose and world point by index."""
         errors = stereo_row_errors(camera, state.T_c_w, state.world_points, self.row_axes[rows], self.row_offsets[rows],
                                    min_depth, self.row_pose[rows], with_jacobians, self.row_world_point[rows])
         return RowEvaluation(errors.residual, errors.jac_pose, errors.jac_point, errors.valid)
@@ -407,6 +408,7 @@ def _solve(
 JACOBIAN_CHUNK_ROWS = 1 << 16
 """Rows whose Jacobians `_SparseProblem.jacobian` holds at once: a local BA's rows in one go, a
 global BA's in pieces of 5 MB instead of all rows' (81 bytes each)."""
+
 
 class _SparseProblem:
     """The included rows of a problem as a function of block-whitened unknowns ``y``, with their sparse Jacobian.
