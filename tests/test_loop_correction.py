@@ -29,7 +29,7 @@ def chain_map() -> Map:
     first = np.arange(n_points) // SHARED
     geometry = np.column_stack([first, np.tile(np.linspace(-2, 2, SHARED), N_KEYFRAMES + 1), np.full(n_points, 10.0)])
     ids = world_map.points.add(geometry, random_descriptors(n_points, seed=1), 0)
-    world_map.points.first_keyframe[ids] = np.maximum(first - 1, 0)
+    world_map.points.writable("first_keyframe")[ids] = np.maximum(first - 1, 0)
     for k in range(N_KEYFRAMES):
         features = simple_features(2 * SHARED, seed=k)
         keyframe = make_keyframe(k, features, camera_at([k, 0.0, 0.0]), point_ids=np.arange(SHARED * k,

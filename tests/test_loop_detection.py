@@ -206,8 +206,8 @@ def revisit_map(neighbours_see_the_place: bool) -> tuple[Map, GeometricCheck]:
     drift = make_pose(so3_exp(np.deg2rad([20.0, 25.0, 0.0])), np.array([2.0, 0.0, 0.0]))  # T_map_world
     loop_side = world_map.points.add(scene, descriptors, 0)
     current_side = world_map.points.add(transform_points(drift, scene), descriptors, 10)
-    world_map.points.normal[:] = [0.0, 0.0, 1.0]  # seen along the world z axis
-    world_map.points.max_distance[:] = np.tile(np.linalg.norm(scene, axis=1), 2)  # keypoints at octave 0
+    world_map.points.writable("normal")[:] = [0.0, 0.0, 1.0]  # seen along the world z axis
+    world_map.points.writable("max_distance")[:] = np.tile(np.linalg.norm(scene, axis=1), 2)  # keypoints at octave 0
     elsewhere, other_descriptors = scene_points(80, seed=5), random_descriptors(80, seed=6)
     world_map.add_keyframe(make_keyframe(0, world_features(camera_at([0.0, 0.0, 0.0]), scene, descriptors),
                                          camera_at([0.0, 0.0, 0.0]), point_ids=loop_side))

@@ -55,8 +55,8 @@ def test_columns_grow_past_the_initial_capacity_and_keep_their_values():
     points = PointLandmarks()
     first_geometry, first_descriptors = scene_points(200, 0), random_descriptors(200, 1)
     points.add(first_geometry, first_descriptors, first_keyframe=0)
-    points.found[:200] = np.arange(200)
-    points.max_distance[:200] = np.arange(200) + 0.5
+    points.writable("found")[:200] = np.arange(200)
+    points.writable("max_distance")[:200] = np.arange(200) + 0.5
     more = points.add(scene_points(700, 2), random_descriptors(700, 3), first_keyframe=1)
     assert more[0] == 200 and more[-1] == 899 and len(points) == 900
     assert np.array_equal(points.geometry[:200], first_geometry)
@@ -83,7 +83,7 @@ def test_line_columns_hold_two_endpoints_per_landmark_and_grow_too():
 def test_live_treats_minus_one_out_of_range_and_dead_ids_as_no_landmark():
     points = PointLandmarks()
     points.add(scene_points(3, 0), random_descriptors(3, 1), 0)
-    points.alive[1] = False
+    points.writable("alive")[1] = False
     assert points.live(np.array([-1, 0, 1, 2, 3, 500])).tolist() == [False, True, False, True, False, False]
 
 
@@ -119,7 +119,7 @@ def test_add_keyframe_rejects_an_id_out_of_order():
 def test_add_keyframe_turns_tracked_ids_into_observations_and_clears_dead_and_repeated_ones():
     world_map = Map(covisibility_min_shared=20)
     points, lines = add_landmarks(world_map, 4, 2)
-    world_map.points.alive[2] = False
+    world_map.points.writable("alive")[2] = False
     keyframe = insert_observer(world_map, point_ids=[0, -1, 2, 1, 0, 3], line_ids=[1, 0])
     assert keyframe.point_ids.tolist() == [0, -1, -1, 1, -1, 3]  # dead 2 and the second sighting of 0 cleared
     assert keyframe.line_ids.tolist() == [1, 0]
@@ -147,7 +147,7 @@ def test_add_observations_skips_dead_landmarks_taken_features_and_a_second_featu
     world_map = Map(covisibility_min_shared=20)
     add_landmarks(world_map, 4)
     keyframe = insert_observer(world_map, point_ids=[0, -1, -1, -1, -1])
-    world_map.points.alive[3] = False
+    world_map.points.writable("alive")[3] = False
     world_map.add_observations(
         world_map.points, keyframe, np.array([0, 1, 2, 3]), np.array([1, 3, 2, 2])
     )
@@ -204,8 +204,10 @@ def test_replace_landmark_moves_the_observations_adds_up_the_counts_and_keeps_th
     first = insert_observer(world_map, point_ids=[0, -1])  # sees old only
     both = insert_observer(world_map, point_ids=[0, 1])  # sees old and new
     third = insert_observer(world_map, point_ids=[-1, 1])  # sees new only
-    points.found[:2], points.visible[:2], points.dynamic_streak[:2] = [3, 4], [5, 9], [3, 2]
-    points.moving_frame[:2] = [12, 7]
+    points.writable("found")[:2] = [3, 4]
+    points.writable("visible")[:2] = [5, 9]
+    points.writable("dynamic_streak")[:2] = [3, 2]
+    points.writable("moving_frame")[:2] = [12, 7]
     world_map.replace_landmark(points, old=0, new=1)
     assert first.point_ids.tolist() == [1, -1]
     assert both.point_ids.tolist() == [-1, 1]  # keeps its own observation of the new landmark
@@ -222,7 +224,7 @@ def test_replacing_a_landmark_by_itself_changes_nothing():
     world_map = Map(covisibility_min_shared=20)
     add_landmarks(world_map, 1)
     keyframe = insert_observer(world_map, point_ids=[0])
-    world_map.points.found[0] = 2
+    world_map.points.writable("found")[0] = 2
     world_map.replace_landmark(world_map.points, 0, 0)
     assert world_map.points.alive[0] and keyframe.point_ids.tolist() == [0] and world_map.points.found[0] == 2
 
@@ -335,7 +337,8 @@ def test_a_culled_keyframe_keeps_its_pose_and_follows_later_changes_of_its_paren
     world_map.remove_keyframe(culled)
     np.testing.assert_allclose(world_map.keyframe_T_w_c(culled.id), T_w_c_at_culling, atol=1e-12)
     relative = inverse(parent.T_w_c) @ T_w_c_at_culling
-    parent.T_c_w = se3_exp(np.array([0.4, 0.1, -0.2, 0.1, 0.2, -0.15])) @ parent.T_c_w  # a BA correction
+    corrected = se3_exp(np.array([0.4, 0.1, -0.2, 0.1, 0.2, -0.15])) @ parent.T_c_w  # a BA correction
+    world_map.set_keyframe_poses(np.array([parent.id]), corrected[None])
     np.testing.assert_allclose(world_map.keyframe_T_w_c(culled.id), parent.T_w_c @ relative, atol=1e-12)
     np.testing.assert_allclose(world_map.keyframe_T_w_c(parent.id), parent.T_w_c, atol=1e-12)
 
@@ -348,7 +351,8 @@ def test_a_keyframe_culled_before_its_parent_keeps_its_pose_through_the_chain():
     np.testing.assert_allclose(world_map.keyframe_T_w_c(3), T_w_c_at_culling, atol=1e-9)
     grandparent = keyframes[1]
     relative = inverse(grandparent.T_w_c) @ T_w_c_at_culling
-    grandparent.T_c_w = se3_exp(np.array([0.4, 0.1, -0.2, 0.1, 0.2, -0.15])) @ grandparent.T_c_w
+    corrected = se3_exp(np.array([0.4, 0.1, -0.2, 0.1, 0.2, -0.15])) @ grandparent.T_c_w
+    world_map.set_keyframe_poses(np.array([grandparent.id]), corrected[None])
     np.testing.assert_allclose(world_map.keyframe_T_w_c(3), grandparent.T_w_c @ relative, atol=1e-9)
 
 

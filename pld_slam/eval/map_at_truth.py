@@ -32,16 +32,18 @@ def move_map_to_truth(world_map: Map, groundtruth: np.ndarray) -> None:
     as local mapping makes landmarks. A point no keyframe observes in stereo keeps its position.
     """
     T_w_c_true = true_keyframe_poses(world_map, groundtruth)
-    for keyframe_id, T_w_c in T_w_c_true.items():
-        world_map.keyframes[keyframe_id].T_c_w = inverse(T_w_c)
+    ids = np.array(list(T_w_c_true), dtype=np.int64)
+    world_map.set_keyframe_poses(ids, inverse(np.array(list(T_w_c_true.values())).reshape(-1, 4, 4)))
     points, lines = world_map.points, world_map.lines
     for landmark in np.flatnonzero(points.alive).tolist():
         for keyframe_id, feature in points.observers[landmark].items():
             features = world_map.keyframes[keyframe_id].features
             if feature < features.keypoints.n_stereo:
-                points.geometry[landmark] = transform_points(T_w_c_true[keyframe_id], features.points.points_c[feature])
+                position = transform_points(T_w_c_true[keyframe_id], features.points.points_c[feature])
+                world_map.set_landmark_geometry(points, np.array([landmark]), position[None])
                 break
     for landmark in np.flatnonzero(lines.alive).tolist():
         keyframe_id, feature = next(iter(lines.observers[landmark].items()))
         endpoints_c = world_map.keyframes[keyframe_id].features.lines.endpoints_c[feature]
-        lines.geometry[landmark] = transform_points(T_w_c_true[keyframe_id], endpoints_c)
+        endpoints_w = transform_points(T_w_c_true[keyframe_id], endpoints_c)
+        world_map.set_landmark_geometry(lines, np.array([landmark]), endpoints_w[None])

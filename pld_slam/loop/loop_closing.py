@@ -50,7 +50,7 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.errors import ConfigError
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, motion_size, transform_points
+from pld_slam.geometry.se3 import inverse, motion_size
 from pld_slam.loop.bow_detector import BowDetector
 from pld_slam.loop.detection import Detection, LoopDetector
 from pld_slam.loop.ggs_detector import GgsDetector
@@ -272,10 +272,9 @@ class LoopClosing:
         for kind in self.map.kinds:
             observed = kind.observed_by(self.map.keyframes[k] for k in group)
             references = [_reference_keyframe(kind, landmark, self.map.keyframes) for landmark in observed.tolist()]
-            _transform_landmarks(kind, observed[np.isin(references, group)], world_motion)
-        for keyframe_id in group:
-            keyframe = self.map.keyframes[keyframe_id]
-            keyframe.T_c_w = keyframe.T_c_w @ inverse(world_motion)
+            self.map.move_landmarks(kind, observed[np.isin(references, group)], world_motion)
+        moved = np.array([self.map.keyframes[keyframe_id].T_c_w @ inverse(world_motion) for keyframe_id in group])
+        self.map.set_keyframe_poses(np.array(group, dtype=np.int64), moved.reshape(-1, 4, 4))
 
     def _fuse(self, keyframe: KeyFrame, check: GeometricCheck, group: list[int]) -> int:
         """Step 2: join the two ends of the loop; returns the observations added or fused.
@@ -314,8 +313,7 @@ class LoopClosing:
         graph = PoseGraph(T_c_w=T_c_w, fixed=ids == ids.min(), edge_i=edge_i, edge_j=edge_j, T_i_j=measured)
         result = optimize_pose_graph(graph, self._config.loop.pose_graph_max_nfev)
         self._move_landmarks_with_keyframes(ids, T_c_w, result.T_c_w)
-        for n, keyframe_id in enumerate(ids.tolist()):
-            self.map.keyframes[keyframe_id].T_c_w = result.T_c_w[n]
+        self.map.set_keyframe_poses(ids, result.T_c_w)
         return result, len(edge_i)
 
     def _move_landmarks_with_keyframes(self, ids: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
@@ -328,7 +326,7 @@ class LoopClosing:
                                   dtype=np.int64)
             for reference in np.unique(references).tolist():
                 at = landmarks[references == reference]
-                _transform_landmarks(kind, at, motion[reference])
+                self.map.move_landmarks(kind, at, motion[reference])
 
 
 def make_detector(world_map: Map, config: Config) -> LoopDetector:
@@ -353,13 +351,3 @@ def _reference_keyframe(kind: Landmarks, landmark: int, live: Container[int]) ->
     observer."""
     creator = int(kind.first_keyframe[landmark])
     return creator if creator in live else next(iter(kind.observers[landmark]))
-
-
-def _transform_landmarks(kind: Landmarks, ids: np.ndarray, T_new_old: np.ndarray) -> None:
-    """Apply the world motion ``T_new_old`` (4, 4) to landmarks ``ids`` (K,) of ``kind``: their geometry
-    and their mean viewing direction (``normal``, world)."""
-    if len(ids) == 0:
-        return
-    geometry = kind.geometry[ids]
-    kind.geometry[ids] = transform_points(T_new_old, geometry.reshape(-1, 3)).reshape(geometry.shape)
-    kind.normal[ids] = kind.normal[ids] @ T_new_old[:3, :3].T

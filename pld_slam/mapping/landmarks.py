@@ -33,13 +33,16 @@ NEVER_MOVING = -(2**40)
 
 
 class _Column:
-    """A class attribute that reads as the first ``len(landmarks)`` rows of one named column."""
+    """A class attribute that reads as the first ``len(landmarks)`` rows of one named column, read-only:
+    the map writes through `Landmarks.writable`."""
 
     def __set_name__(self, owner: type, name: str) -> None:
         self._name = name
 
     def __get__(self, landmarks: "Landmarks", owner: type | None = None) -> np.ndarray:
-        return landmarks._data[self._name][: landmarks._size]
+        rows = landmarks._data[self._name][: landmarks._size]
+        rows.flags.writeable = False
+        return rows
 
 
 class Landmarks:
@@ -117,6 +120,11 @@ class Landmarks:
         """Landmarks ever created (alive or not)."""
         return self._size
 
+    def writable(self, name: str) -> np.ndarray:
+        """Column ``name``'s first ``len(self)`` rows, writable: for `pld_slam.mapping.map.Map`, the landmarks'
+        only writer (a test holds every other module to the read-only columns)."""
+        return self._data[name][: self._size]
+
     @property
     def n_alive(self) -> int:
         """Landmarks alive now."""
@@ -131,10 +139,10 @@ class Landmarks:
         self._reserve(self._size + count)
         ids = np.arange(self._size, self._size + count)
         self._size += count
-        self.geometry[ids] = geometry
-        self.descriptor[ids] = descriptor
-        self.first_keyframe[ids] = first_keyframe
-        self.alive[ids] = True
+        self.writable("geometry")[ids] = geometry
+        self.writable("descriptor")[ids] = descriptor
+        self.writable("first_keyframe")[ids] = first_keyframe
+        self.writable("alive")[ids] = True
         self.observers.extend({} for _ in range(count))
         return ids
 

@@ -189,7 +189,8 @@ class _Recent:
 
 
 class LocalMapping:
-    """The local mapping stage: the only writer of the map's landmarks and keyframe poses."""
+    """The local mapping stage: inserts keyframes, makes and culls landmarks and keyframes, runs local BA,
+    all through the map's methods (`Map` is the only writer of its data)."""
 
     def __init__(self, world_map: Map, camera: StereoCamera, config: Config) -> None:
         self.map = world_map
@@ -198,8 +199,6 @@ class LocalMapping:
         self._recent = _Recent()
         self._last_local_ba_frame: int | None = None
         """Frame index of the keyframe of the last local BA (None before the first)."""
-        self._tracked_frames = 0
-        """Frames `record_tracking` counted (the clock of ``Landmarks.moving_frame``)."""
 
     def record_tracking(
         self,
@@ -208,21 +207,9 @@ class LocalMapping:
         missed: tuple[np.ndarray, np.ndarray],
         dynamic: tuple[np.ndarray, np.ndarray],
     ) -> None:
-        """Count, for one tracked frame, the (point ids, line ids) visible (within the search's bounds), found
-        (static inliers), missed in view (`LocalMapTracking.missed_point_ids`) and seen moving (matched to
-        a feature labelled dynamic, lying under one, or seen through): found ends the missed streak, and the
-        dynamic one unless the landmark was seen moving in the last ``mapping.dynamic_memory`` tracked frames."""
-        self._tracked_frames += 1
-        memory = self._config.mapping.dynamic_memory
-        for kind, seen, matched, lost, moving in zip(self.map.kinds, visible, found, missed, dynamic):
-            kind.visible[seen] += 1
-            kind.found[matched] += 1
-            kind.missed_streak[lost] += 1
-            kind.missed_streak[matched] = 0
-            cleared = matched[self._tracked_frames - kind.moving_frame[matched] > memory]
-            kind.dynamic_streak[cleared] = 0
-            kind.dynamic_streak[moving] += 1
-            kind.moving_frame[moving] = self._tracked_frames
+        """Count one tracked frame in the landmarks' statistics (`Map.count_tracked_frame`, with
+        ``mapping.dynamic_memory``): the counters of step 2."""
+        self.map.count_tracked_frame(visible, found, missed, dynamic, self._config.mapping.dynamic_memory)
 
     def insert_keyframe(self, keyframe: KeyFrame) -> KeyframeInsertion:
         """Insert ``keyframe`` (``point_ids`` / ``line_ids`` from tracking); run the steps of the module docstring."""

@@ -1,7 +1,10 @@
 """`Map`: keyframes, map points and lines, their observations, and the covisibility graph.
 
-Local mapping (`pld_slam.mapping.local_mapping`) is the only writer; tracking reads it
-through `local_map` and `pld_slam.tracking.local_map`. Every change goes through a few
+The map is the only writer of its data: keyframe poses, landmark columns (read-only
+views everywhere else, `pld_slam.mapping.landmarks.Landmarks.writable`) and observations
+change through its methods, which local mapping, loop closing, the BA write-back and
+tracking's frame counts call; `tests/test_map_writes.py` holds every other module to that.
+Tracking reads it through `pld_slam.tracking.local_map`. Observations change through a few
 methods that keep the two copies of an observation in step (a keyframe's landmark id per
 feature, a landmark's ``{keyframe: feature}``, see `pld_slam.mapping.landmarks`), the
 observer counts, and the covisibility links: each observation added or removed changes
@@ -23,7 +26,7 @@ import numpy as np
 
 from pld_slam.frontend.descriptors import hamming_distances
 from pld_slam.frontend.ggs import GgsDatabase
-from pld_slam.geometry.se3 import inverse
+from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.mapping.covisibility import CovisibilityGraph
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, LineLandmarks, PointLandmarks
@@ -45,6 +48,8 @@ class Map:
         self._next_keyframe_id = 0
         self._culled: dict[int, tuple[int, np.ndarray]] = {}
         """Culled keyframe id -> (its parent's id, ``T_c_p`` from the parent camera to it)."""
+        self._tracked_frames = 0
+        """Frames `count_tracked_frame` counted (the clock of ``Landmarks.moving_frame``)."""
 
     @property
     def kinds(self) -> tuple[Landmarks, Landmarks]:
@@ -93,7 +98,7 @@ class Map:
             self.covisibility.change_shared(keyframe.id, observers.keys(), +1)
             observers[keyframe.id] = feature
             ids[feature] = landmark
-            kind.n_observers[landmark] += 1
+            kind.writable("n_observers")[landmark] += 1
 
     def erase_observations(self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray) -> None:
         """``keyframe``'s features (K,) no longer observe their landmarks; a landmark left unobserved dies."""
@@ -106,9 +111,10 @@ class Map:
             observers = kind.observers[landmark]
             del observers[keyframe.id]
             self.covisibility.change_shared(keyframe.id, observers.keys(), -1)
-            kind.n_observers[landmark] -= 1
-            if kind.n_observers[landmark] == 0:
-                kind.alive[landmark] = False
+            n_observers = kind.writable("n_observers")
+            n_observers[landmark] -= 1
+            if n_observers[landmark] == 0:
+                kind.writable("alive")[landmark] = False
 
     def create_landmarks(
         self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, geometry_w: np.ndarray, descriptors: np.ndarray
@@ -126,8 +132,8 @@ class Map:
                 getattr(self.keyframes[keyframe], kind.IDS_FIELD)[feature] = -1
             self.covisibility.unlink_all(list(observers))
             kind.observers[landmark] = {}
-            kind.n_observers[landmark] = 0
-            kind.alive[landmark] = False
+            kind.writable("n_observers")[landmark] = 0
+            kind.writable("alive")[landmark] = False
 
     def replace_landmark(self, kind: Landmarks, old: int, new: int) -> None:
         """Fuse landmark ``old`` into ``new``: its observations move to ``new``, then it dies.
@@ -147,14 +153,14 @@ class Map:
                 self.covisibility.change_shared(keyframe_id, kind.observers[new].keys(), +1)
                 kind.observers[new][keyframe_id] = feature
                 getattr(keyframe, kind.IDS_FIELD)[feature] = new
-                kind.n_observers[new] += 1
-        kind.found[new] += kind.found[old]
-        kind.visible[new] += kind.visible[old]
-        kind.dynamic_streak[new] = max(kind.dynamic_streak[new], kind.dynamic_streak[old])
-        kind.moving_frame[new] = max(kind.moving_frame[new], kind.moving_frame[old])
+                kind.writable("n_observers")[new] += 1
+        for name in ("found", "visible"):
+            kind.writable(name)[new] += kind.writable(name)[old]
+        for name in ("dynamic_streak", "moving_frame"):
+            kind.writable(name)[new] = max(kind.writable(name)[new], kind.writable(name)[old])
         kind.observers[old] = {}
-        kind.n_observers[old] = 0
-        kind.alive[old] = False
+        kind.writable("n_observers")[old] = 0
+        kind.writable("alive")[old] = False
 
     def observe_or_fuse(
         self, kind: Landmarks, keyframe: KeyFrame, features: np.ndarray, landmarks: np.ndarray, keep_matched: bool
@@ -204,6 +210,59 @@ class Map:
         if keyframe.place_ggs is not None:
             self.ggs.remove(keyframe.id)
         del self.keyframes[keyframe.id]
+
+    def set_keyframe_poses(self, keyframe_ids: np.ndarray, T_c_w: np.ndarray) -> None:
+        """Move live keyframes ``keyframe_ids`` (K,) to the world-to-camera poses ``T_c_w`` (K, 4, 4)."""
+        for keyframe_id, pose in zip(np.asarray(keyframe_ids).tolist(), T_c_w):
+            self.keyframes[keyframe_id].T_c_w = pose
+
+    def set_landmark_geometry(self, kind: Landmarks, landmarks: np.ndarray, geometry_w: np.ndarray) -> None:
+        """Put landmarks (K,) of ``kind`` at ``geometry_w`` (K, *kind.GEOMETRY_SHAPE) world coordinates [m].
+
+        Their summaries (viewing direction, distance range, descriptor) stay as they are:
+        refreshed after every BA, as ORB-SLAM2 does, they cost accuracy on five of seven
+        sequences (`benchmarks/decisions/stereo_scale.md`, "Hypotheses measured and rejected").
+        """
+        kind.writable("geometry")[landmarks] = geometry_w
+
+    def move_landmarks(self, kind: Landmarks, landmarks: np.ndarray, T_new_old: np.ndarray) -> None:
+        """Apply the world motion ``T_new_old`` (4, 4) to landmarks (K,) of ``kind``: their geometry and
+        their mean viewing direction (``normal``, world)."""
+        if len(landmarks) == 0:
+            return
+        geometry = kind.geometry[landmarks]
+        moved = transform_points(T_new_old, geometry.reshape(-1, 3)).reshape(geometry.shape)
+        kind.writable("geometry")[landmarks] = moved
+        kind.writable("normal")[landmarks] = kind.normal[landmarks] @ T_new_old[:3, :3].T
+
+    def count_tracked_frame(
+        self,
+        visible: tuple[np.ndarray, np.ndarray],
+        found: tuple[np.ndarray, np.ndarray],
+        missed: tuple[np.ndarray, np.ndarray],
+        dynamic: tuple[np.ndarray, np.ndarray],
+        dynamic_memory: int,
+    ) -> None:
+        """Count one tracked frame in the landmarks' statistics, each argument (point ids, line ids).
+
+        ``visible`` (within the search's bounds), ``found`` (static inliers), ``missed`` in view
+        (`pld_slam.tracking.local_map.LocalMapTracking.missed_point_ids`), ``dynamic``: seen
+        moving (matched to a feature labelled dynamic, lying under one, or seen through). Found
+        ends the missed streak, and the dynamic one unless the landmark was seen moving in the
+        last ``dynamic_memory`` tracked frames (``moving_frame`` counts frames by this clock).
+        """
+        self._tracked_frames += 1
+        for kind, seen, matched, lost, moving in zip(self.kinds, visible, found, missed, dynamic):
+            kind.writable("visible")[seen] += 1
+            kind.writable("found")[matched] += 1
+            missed_streak = kind.writable("missed_streak")
+            missed_streak[lost] += 1
+            missed_streak[matched] = 0
+            cleared = matched[self._tracked_frames - kind.moving_frame[matched] > dynamic_memory]
+            dynamic_streak = kind.writable("dynamic_streak")
+            dynamic_streak[cleared] = 0
+            dynamic_streak[moving] += 1
+            kind.writable("moving_frame")[moving] = self._tracked_frames
 
     def keyframe_trajectory(self) -> Trajectory:
         """The poses ``T_w_c`` of the keyframes alive, by time (ORB-SLAM's ``KeyFrameTrajectory.txt``)."""
@@ -270,13 +329,13 @@ class Map:
         distance = np.linalg.norm(rays, axis=1)
         normal = np.zeros((len(landmarks), 3))
         np.add.at(normal, rows, rays / np.maximum(distance, 1e-12)[:, None])
-        kind.normal[landmarks] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+        kind.writable("normal")[landmarks] = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
         descriptors = self.feature_attribute(kind, "descriptors", keyframes, features)
-        kind.descriptor[landmarks] = representative_descriptors(rows, descriptors, len(landmarks))
+        kind.writable("descriptor")[landmarks] = representative_descriptors(rows, descriptors, len(landmarks))
         if isinstance(kind, PointLandmarks):
             first = np.flatnonzero(np.diff(rows, prepend=-1))
             octave = self.feature_attribute(kind, "octave", keyframes[first], features[first])
-            kind.max_distance[landmarks] = distance[first] * scale_factor ** octave.astype(np.float64)
+            kind.writable("max_distance")[landmarks] = distance[first] * scale_factor ** octave.astype(np.float64)
 
     def feature_attribute(
         self, kind: Landmarks, attribute: str, keyframes: np.ndarray, features: np.ndarray

@@ -114,10 +114,9 @@ def adjust_keyframes(
         **(TO_CONVERGENCE if to_convergence else {}),
     )
     result = bundle_adjust(camera, problem, options)
-    for index in np.flatnonzero(~fixed).tolist():
-        world_map.keyframes[int(keyframes[index])].T_c_w = result.T_c_w[index]
-    world_map.points.geometry[point_ids] = result.points_w
-    world_map.lines.geometry[line_ids] = result.lines_w
+    world_map.set_keyframe_poses(keyframes[~fixed], result.T_c_w[~fixed])
+    world_map.set_landmark_geometry(world_map.points, point_ids, result.points_w)
+    world_map.set_landmark_geometry(world_map.lines, line_ids, result.lines_w)
     removed = _erase(world_map, world_map.points, points, ~result.inliers.points)
     removed += _erase(world_map, world_map.lines, lines, ~result.inliers.lines)
     return BaReport(
