@@ -9,6 +9,7 @@ and z, its right camera 1 cm behind its left, so that a sign or an axis wrong sh
 import cv2
 import numpy as np
 import pytest
+import yaml
 from test_datasets import (
     BASELINE,
     COLOUR_BASELINE,
@@ -32,6 +33,11 @@ from pld_slam.config import load_config
 from pld_slam.datasets import StereoSequence, open_sequence, with_cameras
 from pld_slam.errors import ConfigError, DatasetError
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp
+from pld_slam.io.trajectory import read_tum
+from pld_slam.report.ablation import prepare_ablation
+from pld_slam.report.cells import plan_cells
+from pld_slam.report.store import groundtruth_path
+from pld_slam.report.suite import Suite, Variant
 from pld_slam.system import System
 
 MAKERS = {"odometry": make_kitti_odometry, "raw": make_kitti_raw}
@@ -189,7 +195,7 @@ def test_a_colour_pair_without_its_right_folder_names_it(tmp_path):
 def test_grey_or_colour_asked_of_a_sequence_of_one_pair_is_a_config_error(tmp_path):
     sequence = open_sequence(make_generic(tmp_path, rectified_calibration()))
     assert with_cameras(sequence, "auto") is sequence
-    with pytest.raises(ConfigError, match="dataset.cameras is colour but .* is a generic sequence of one stereo pair"):
+    with pytest.raises(ConfigError, match="dataset.cameras is colour but .* is read from one stereo pair; grey and"):
         with_cameras(sequence, "colour")
 
 
@@ -236,3 +242,16 @@ def test_a_system_configured_for_another_pair_than_its_sequence_is_read_from_ref
     sequence = open_sequence(make_kitti_odometry(tmp_path, pairs=("grey", "colour")))
     with pytest.raises(ConfigError, match="dataset.cameras is colour but .* is read from its grey pair; run on"):
         System(sequence, load_config([], ["dataset.cameras=colour"]))
+
+
+def test_an_ablation_reads_the_pair_its_set_chooses_and_no_variant_may_choose_another(tmp_path):
+    folder = make_kitti_odometry(tmp_path / "data", pairs=("grey", "colour"))
+    (folder / "poses.txt").write_text("\n".join(kitti_pose_rows(cam0_poses(3))) + "\n")
+    cells = prepare_ablation(tmp_path / "out", [folder], Suite("pairs", "", (Variant("default", ()),)),
+                             ["dataset.cameras=colour"])
+    assert yaml.safe_load(cells[0].config_yaml)["dataset"]["cameras"] == "colour"
+    stored = read_tum(groundtruth_path(tmp_path / "out", cells[0].sequence))
+    np.testing.assert_allclose(stored.poses, with_cameras(open_sequence(folder), "colour").groundtruth.poses, atol=1e-6)
+    suite = Suite("pairs", "", (Variant("default", ()), Variant("colour", ("dataset.cameras=colour",))))
+    with pytest.raises(ConfigError, match="read from its grey pair; variant colour cannot choose the pair"):
+        plan_cells([open_sequence(folder)], suite)

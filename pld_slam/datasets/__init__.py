@@ -86,12 +86,21 @@ def with_cameras(sequence: StereoSequence, cameras: str) -> StereoSequence:
     if cameras in ("auto", sequence.cameras):
         return sequence
     if sequence.cameras is None:
-        raise ConfigError(
-            f"dataset.cameras is {cameras} but {sequence.root} is a {sequence.layout} sequence of one stereo pair; "
-            "grey and colour choose between KITTI's pairs (set auto)"
-        )
+        require_cameras(sequence, cameras, "grey and colour choose between the pairs of KITTI's folders (set auto)")
     layout = next(layout for layout in LAYOUTS if layout.LAYOUT == sequence.layout)
     return layout.load(Path(sequence.root), cameras)
 
 
-__all__ = ["LAYOUTS", "BagOptions", "FrameRate", "StereoFrame", "StereoSequence", "open_sequence", "with_cameras"]
+def require_cameras(sequence: StereoSequence, cameras: str, remedy: str) -> None:
+    """Raise `ConfigError` unless ``sequence`` is read from the pair ``cameras`` (``dataset.cameras``)
+    names (``auto`` takes any); the message ends with ``remedy``, what to do instead."""
+    if cameras in ("auto", sequence.cameras):
+        return
+    read_from = "one stereo pair" if sequence.cameras is None else f"its {sequence.cameras} pair"
+    raise ConfigError(f"dataset.cameras is {cameras} but {sequence.root} is read from {read_from}; {remedy}")
+
+
+__all__ = [
+    "LAYOUTS", "BagOptions", "FrameRate", "StereoFrame", "StereoSequence", "open_sequence", "require_cameras",
+    "with_cameras",
+]
