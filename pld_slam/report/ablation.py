@@ -43,6 +43,10 @@ def prepare_ablation(
 ) -> list[CellSpec]:
     """Open the sequences, plan every cell, and write ``ablation.json`` and the ground truths.
 
+    A KITTI sequence is read from the pair ``overrides`` choose (``dataset.cameras``), so
+    that its ground truth is of the camera every cell runs on (`plan_cells` refuses a
+    variant choosing another).
+
     Raises
     ------
     PldSlamError
