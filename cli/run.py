@@ -54,6 +54,7 @@ def format_run_table(summary: dict) -> str:
     coverage = coverage_note(summary["n_matched"], summary["frames"])
     rows = [
         ("sequence", summary["sequence"]),
+        *([("cameras", f"{summary['cameras']} pair")] if summary["cameras"] else []),
         ("frames", f"{summary['frames']} of {summary['frames_in_sequence']}"
                    + ("" if summary["completed"] else f" (stopped: {summary['stop_reason']})")),
         ("tracking failures", str(len(summary["tracking_failures"]))),

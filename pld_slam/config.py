@@ -47,8 +47,13 @@ class SystemConfig:
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    """How frames are delivered from the sequence (`pld_slam.datasets.StereoSequence.scaled`)."""
+    """How frames are delivered from the sequence (`pld_slam.datasets.with_cameras`,
+    `pld_slam.datasets.StereoSequence.scaled`)."""
 
+    cameras: Literal["auto", "grey", "colour"] = _param(
+        "auto", "KITTI's stereo pair: grey (image_0/1, image_00/01), colour (image_2/3, image_02/03, read as grey) "
+        "or auto (grey where the folder has it, else colour)"
+    )
     scale: float = _param(
         1.0, "resize factor of every frame and of the camera intrinsics (baseline kept); 0.5 halves each side",
         0.05, 1.0,

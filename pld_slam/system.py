@@ -47,7 +47,7 @@ import numpy as np
 
 from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
-from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.datasets import StereoFrame, StereoSequence, require_cameras
 from pld_slam.errors import ConfigError, Terminated
 from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoFeatures
@@ -179,6 +179,8 @@ class System:
                 f"dataset.scale is {config.dataset.scale:g} but {sequence.root} is scaled by {sequence.scale:g}; "
                 "run on sequence.scaled(config.dataset.scale)"
             )
+        require_cameras(sequence, config.dataset.cameras,
+                        "run on pld_slam.datasets.with_cameras(sequence, config.dataset.cameras)")
         if config.dynamic.from_masks and sequence.dynamic_mask_paths is None:
             raise ConfigError(
                 f"dynamic.from_masks is set but {sequence.root} has no dynamic_masks/ folder (one mask per left image)"

@@ -257,6 +257,40 @@ def test_run_rejects_a_bad_override_before_running(synthetic_sequence, tmp_path)
     assert result.output.startswith("error: --set lines.enabled=maybe: lines.enabled must be true or false")
 
 
+def add_colour_copy_of_grey_pair(sequence: Path) -> None:
+    """Give a KITTI-layout ``sequence`` a colour pair: its grey images written as BGR (which
+    read back as the same grey) in ``image_2/``, ``image_3/``, and ``P2``, ``P3`` = ``P0``, ``P1``."""
+    for grey, colour in (("image_0", "image_2"), ("image_1", "image_3")):
+        (sequence / colour).mkdir()
+        for path in (sequence / grey).iterdir():
+            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            cv2.imwrite(str(sequence / colour / path.name), cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    rows = (sequence / "calib.txt").read_text().splitlines()
+    (sequence / "calib.txt").write_text("\n".join(rows + [rows[0].replace("P0", "P2"), rows[1].replace("P1", "P3")]))
+
+
+def test_run_reads_the_kitti_colour_pair_when_set_and_says_so(synthetic_sequence, tmp_path):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    add_colour_copy_of_grey_pair(sequence)
+    grey = run("run", sequence, "--out", tmp_path / "grey", "--max-frames", 3, "--json")
+    colour = run("run", sequence, "--out", tmp_path / "colour", "--max-frames", 3, "--set", "dataset.cameras=colour")
+    assert grey.exit_code == 0 and colour.exit_code == 0, grey.output + colour.output
+    assert json.loads(grey.output)["cameras"] == "grey"
+    assert re.search(r"^cameras +colour pair$", colour.output, re.M)
+    assert json.loads((tmp_path / "colour" / "summary.json").read_text())["cameras"] == "colour"
+    # the same images through the same camera: the same poses
+    trajectories = [(tmp_path / name / "trajectory.kitti.txt").read_text() for name in ("grey", "colour")]
+    assert trajectories[0] == trajectories[1]
+
+
+def test_run_asked_for_a_colour_pair_the_folder_lacks_names_the_folder(synthetic_sequence, tmp_path):
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--set", "dataset.cameras=colour")
+    assert result.exit_code == EXIT_USER_ERROR
+    missing = synthetic_sequence.resolve() / "image_2"
+    assert result.output == f"error: {missing}: image folder not found (dataset.cameras=colour reads the colour pair)\n"
+    assert not (tmp_path / "run").exists()
+
+
 def test_demo_generates_a_sequence_and_prints_accuracy_and_speed(tmp_path):
     result = run("demo", "--out", tmp_path / "demo", "--frames", 8)
     assert result.exit_code == 0, result.output

@@ -25,12 +25,13 @@ BASELINE = 0.25
 # ---------------------------------------------------------------- helpers: generated folders
 
 
-def write_images(folder: Path, names: list[str], seed: int = 0, size=(WIDTH, HEIGHT)) -> None:
-    """Random grey images ``folder/name`` of ``size`` = (width, height)."""
+def write_images(folder: Path, names: list[str], seed: int = 0, size=(WIDTH, HEIGHT), colour: bool = False) -> None:
+    """Random grey (or BGR ``colour``) images ``folder/name`` of ``size`` = (width, height)."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
+    shape = (size[1], size[0], 3) if colour else (size[1], size[0])
     for name in names:
-        cv2.imwrite(str(folder / name), rng.integers(0, 256, (size[1], size[0]), dtype=np.uint8))
+        cv2.imwrite(str(folder / name), rng.integers(0, 256, shape, dtype=np.uint8))
 
 
 def write_lines(path: Path, lines: list[str]) -> Path:
@@ -51,6 +52,23 @@ def projection(baseline: float = 0.0) -> np.ndarray:
     return K @ np.hstack([np.eye(3), [[-baseline], [0.0], [0.0]]])
 
 
+COLOUR_CX, COLOUR_CY = CX + 1.5, CY - 1.0
+"""The generated colour cameras' principal point [px], not the grey pair's."""
+COLOUR_LEFT_T = np.array([0.06, -0.004, 0.03])
+"""``t`` [m] of the generated colour left camera (cam2): where cam0's origin lies in cam2,
+whose centre is 6 cm left of cam0's (x < 0), as in KITTI, and a few cm off in y and z."""
+COLOUR_BASELINE = 0.3
+"""Distance [m] along x from the generated colour left camera to the right one, which also
+sits 1 cm further back (KITTI's sit a few mm apart along the optical axis)."""
+
+
+def colour_projections() -> tuple[np.ndarray, np.ndarray]:
+    """(3, 4) ``P2``, ``P3`` of the generated colour pair: ``K [I | t]`` of points in cam0's frame."""
+    K = np.array([[FX, 0.0, COLOUR_CX], [0.0, FY, COLOUR_CY], [0.0, 0.0, 1.0]])
+    t_right = COLOUR_LEFT_T - [COLOUR_BASELINE, 0.0, -0.01]
+    return K @ make_pose(np.eye(3), COLOUR_LEFT_T)[:3], K @ make_pose(np.eye(3), t_right)[:3]
+
+
 def translation(x: float, y: float = 0.0, z: float = 0.0) -> np.ndarray:
     """(4, 4) pure translation [m]."""
     return make_pose(np.eye(3), np.array([x, y, z]))
@@ -61,24 +79,35 @@ def kitti_pose_rows(poses: np.ndarray) -> list[str]:
     return [numbers(T[:3]) for T in poses]
 
 
-def make_kitti_odometry(root: Path, n: int = 3) -> Path:
-    """``root/sequences/00`` with n frames, calib.txt, times.txt and no ground truth."""
+def make_kitti_odometry(root: Path, n: int = 3, pairs: tuple[str, ...] = ("grey",)) -> Path:
+    """``root/sequences/00`` with n frames, calib.txt, times.txt and no ground truth; the
+    grey pair (``image_0/``, ``image_1/``) and/or the colour pair (``image_2/``,
+    ``image_3/``, `colour_projections`) as ``pairs`` says; ``calib.txt`` has ``P0``-``P3``
+    with the colour pair, as KITTI's."""
     folder = root / "sequences" / "00"
     names = [f"{i:06d}.png" for i in range(n)]
-    write_images(folder / "image_0", names, seed=0)
-    write_images(folder / "image_1", names, seed=1)
-    write_lines(folder / "calib.txt", [f"P0: {numbers(projection())}", f"P1: {numbers(projection(BASELINE))}"])
+    calibration = [f"P0: {numbers(projection())}", f"P1: {numbers(projection(BASELINE))}"]
+    if "grey" in pairs:
+        write_images(folder / "image_0", names, seed=0)
+        write_images(folder / "image_1", names, seed=1)
+    if "colour" in pairs:
+        write_images(folder / "image_2", names, seed=2, colour=True)
+        write_images(folder / "image_3", names, seed=3, colour=True)
+        calibration += [f"P{i}: {numbers(P)}" for i, P in enumerate(colour_projections(), start=2)]
+    write_lines(folder / "calib.txt", calibration)
     write_lines(folder / "times.txt", [f"{0.1 * i:.6e}" for i in range(n)])
     return folder
 
 
 def make_kitti_raw(
     root: Path, n: int = 3, metres_east_per_frame: float = 1.0, east: list[float] | None = None,
-    packet_times: list[str] | None = None,
+    packet_times: list[str] | None = None, pairs: tuple[str, ...] = ("grey",), yaws: list[float] | None = None,
 ) -> Path:
-    """A raw drive with n frames, one a second, whose OXTS unit drives east (yaw 0) at a
-    constant step, or to the positions ``east`` [m] if given; with ``oxts/timestamps.txt``
-    if ``packet_times`` are given.
+    """A raw drive with n frames, one a second, whose OXTS unit drives east (yaw 0, or
+    ``yaws`` [rad] if given) at a constant step, or to the positions ``east`` [m] if given;
+    with ``oxts/timestamps.txt`` if ``packet_times`` are given; the grey pair
+    (``image_00/``, ``image_01/``) and/or the colour pair (``image_02/``, ``image_03/``,
+    `colour_projections`) as ``pairs`` says.
 
     The calibration puts the camera looking along the IMU's x axis (forward), so the
     camera moves along its own z axis.
@@ -86,12 +115,13 @@ def make_kitti_raw(
     date = root / "2011_01_01"
     folder = date / "2011_01_01_drive_0001_sync"
     names = [f"{i:010d}.png" for i in range(n)]
-    write_images(folder / "image_00" / "data", names, seed=0)
-    write_images(folder / "image_01" / "data", names, seed=1)
-    write_lines(
-        folder / "image_00" / "timestamps.txt",
-        [f"2011-01-01 00:00:{i:02d}.100000001" for i in range(n)],
-    )
+    times = [f"2011-01-01 00:00:{i:02d}.100000001" for i in range(n)]
+    for pair, (left, right) in (("grey", ("image_00", "image_01")), ("colour", ("image_02", "image_03"))):
+        if pair in pairs:
+            for seed, camera in enumerate((left, right), start=0 if pair == "grey" else 2):
+                write_images(folder / camera / "data", names, seed=seed, colour=pair == "colour")
+            write_lines(folder / left / "timestamps.txt", times)
+    P_rect_02, P_rect_03 = colour_projections()
     write_lines(
         date / "calib_cam_to_cam.txt",
         [
@@ -100,6 +130,9 @@ def make_kitti_raw(
             f"R_rect_00: {numbers(np.eye(3))}",
             f"P_rect_00: {numbers(projection())}",
             f"P_rect_01: {numbers(projection(BASELINE))}",
+            f"S_rect_02: {WIDTH} {HEIGHT}",
+            f"P_rect_02: {numbers(P_rect_02)}",
+            f"P_rect_03: {numbers(P_rect_03)}",
         ],
     )
     camera_from_velodyne = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -108,8 +141,9 @@ def make_kitti_raw(
     lat0, lon0 = 49.0, 8.4
     degrees_per_metre = 180.0 / (np.cos(np.deg2rad(lat0)) * EARTH_RADIUS * np.pi)
     east = [i * metres_east_per_frame for i in range(n)] if east is None else east
+    yaws = [0.0] * n if yaws is None else yaws
     for i in range(n):
-        packet = [lat0, lon0 + east[i] * degrees_per_metre, 110.0, 0, 0, 0] + [0] * 24
+        packet = [lat0, lon0 + east[i] * degrees_per_metre, 110.0, 0, 0, yaws[i]] + [0] * 24
         write_lines(folder / "oxts" / "data" / f"{i:010d}.txt", [" ".join(f"{v:.15g}" for v in packet)])
     if packet_times is not None:
         write_lines(folder / "oxts" / "timestamps.txt", packet_times)

@@ -74,18 +74,21 @@ class FrameRate:
         return FrameRate(self.hz / step, f"{self.source}, every {step} frames")
 
 
-def read_grey(path: Path) -> np.ndarray:
-    """Read an image file as (H, W) uint8 grey, or raise `DatasetError` naming the file."""
+def read_grey(path: Path, from_colour: bool = False) -> np.ndarray:
+    """Read an image file as (H, W) uint8 grey, or raise `DatasetError` naming the file.
+
+    ``from_colour``: the file is a colour image, converted as `decode_grey` says.
+    """
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as error:
         raise DatasetError(f"{path}: cannot read image ({error.strerror or error})") from None
     if data.size == 0:
         raise DatasetError(f"{path}: cannot read image (empty file)")
-    return decode_grey(data, str(path))
+    return decode_grey(data, str(path), from_colour)
 
 
-def decode_grey(data: np.ndarray, source: str) -> np.ndarray:
+def decode_grey(data: np.ndarray, source: str, from_colour: bool = False) -> np.ndarray:
     """Decode the bytes (K,) uint8 of an encoded image (PNG, JPEG, ...) as (H, W) uint8 grey.
 
     ``source`` (a file, or a bag message) is named in the `DatasetError` raised for
@@ -93,14 +96,19 @@ def decode_grey(data: np.ndarray, source: str) -> np.ndarray:
     `_native_stderr_discarded`, because the decoders OpenCV calls print to the process's
     stderr on bad bytes (libpng's ``libpng error: Read Error`` for a truncated file),
     noise around the one line that names the source and the problem.
+
+    ``from_colour`` (KITTI's colour pair): the image is decoded in colour and converted
+    with ``cv2.cvtColor(BGR2GRAY)``, as ORB-SLAM2 converts its colour input. Decoding
+    straight to grey lets libpng convert instead, with its own rounding: 1 grey level
+    off in half the pixels of a random colour PNG.
     """
     if data.size == 0:
         raise DatasetError(f"{source}: cannot read image (no data)")
     with _native_stderr_discarded():
-        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+        image = cv2.imdecode(data, cv2.IMREAD_COLOR if from_colour else cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise DatasetError(f"{source}: cannot read image (not an image, or corrupt)")
-    return image
+    return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if from_colour else image
 
 
 @contextmanager
@@ -176,6 +184,8 @@ class ImageFiles:
         (N,) image files of the left and right cameras, paired by position.
     size : tuple of int
         ``(width, height)`` [px] of the calibration, which every image must have.
+    colour : bool
+        The files are colour images, read as grey (`decode_grey`'s ``from_colour``).
     """
 
     forks_safely: ClassVar[bool] = True
@@ -184,6 +194,7 @@ class ImageFiles:
     left_paths: Sequence[Path]
     right_paths: Sequence[Path]
     size: tuple[int, int]
+    colour: bool = False
 
     def __post_init__(self) -> None:
         if len(self.left_paths) != len(self.right_paths):
@@ -201,7 +212,7 @@ class ImageFiles:
 
     def _read_calibrated(self, path: Path) -> np.ndarray:
         """The grey image of ``path``, checked to be of the calibrated size."""
-        image = read_grey(path)
+        image = read_grey(path, self.colour)
         check_calibrated_size(str(path), image, self.size)
         return image
 
@@ -249,6 +260,10 @@ class StereoSequence:
         (synthetic sequences only).
     scale : float
         The factor (`scaled`) the rectified images are resized by before delivery; 1 as read.
+    cameras : str or None
+        Which of the rig's stereo pairs the frames come from, where it has two: KITTI's
+        ``grey`` or ``colour`` pair (`pld_slam.datasets.kitti_cameras`); None for a rig of
+        one pair. The camera and the ground truth are those of the pair's left camera.
     """
 
     name: str
@@ -262,6 +277,7 @@ class StereoSequence:
     rectifier: Rectifier | None = field(default=None, repr=False)
     dynamic_mask_paths: Sequence[Path] | None = None
     scale: float = 1.0
+    cameras: str | None = None
 
     def __post_init__(self) -> None:
         if len(self.timestamps) != len(self.frames):

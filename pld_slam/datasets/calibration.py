@@ -28,12 +28,14 @@ import yaml
 
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.geometry.se3 import make_pose
 
 _OPENCV_YAML_DIRECTIVE = "%YAML"
 
-PINHOLE_ENTRIES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy", (0, 3): "tx"}
+PINHOLE_ENTRIES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy", (0, 3): "tx", (2, 3): "tz"}
 """The entries of a (3, 3) intrinsic or (3, 4) projection matrix a camera uses, by name
-(``tx = -fx * baseline`` of a right projection), for messages."""
+(``tx = -fx * baseline`` of a right projection; ``tz``, the camera's offset along the
+optical axis, is 0 but in KITTI's colour cameras), for messages."""
 
 
 @dataclass(frozen=True)
@@ -196,23 +198,35 @@ def stereo_camera_from_projections(
 ) -> StereoCamera:
     """The rectified `StereoCamera` of the two (3, 4) projection matrices of a rectified pair.
 
-    Intrinsics come from ``P_left``; the baseline [m] is
-    ``(P_left[0, 3] - P_right[0, 3]) / fx`` (``P_right[0, 3] = -fx * b`` when the left
-    camera is the reference, as in KITTI and ``cv2.stereoRectify``). Where the two
-    matrices have different principal points, their difference
+    Each matrix is ``K [I | t]``: it projects points of a reference camera's rectified
+    frame, ``t`` being where that camera's origin lies in this camera's frame [m].
+    Intrinsics come from ``P_left``; the baseline [m] is the distance along x between the
+    two cameras, ``t_left[0] - t_right[0]``, with ``t[0] = (P[0, 3] - cx * P[2, 3]) / fx``.
+    Where the left camera is the reference (KITTI's grey pair, ``cv2.stereoRectify``),
+    ``P[2, 3] = 0`` and this is ``(P_left[0, 3] - P_right[0, 3]) / fx``
+    (``P_right[0, 3] = -fx * b``). KITTI's colour cameras are not the reference and sit
+    a few mm apart along the optical axis (``P2[2, 3]`` 6.2 mm, ``P3[2, 3]`` 3.3 mm on
+    odometry 04); ``(P2[0, 3] - P3[0, 3]) / fx`` would count ``cx`` times those 2.9 mm as
+    baseline, 0.5379 m instead of 0.5354. Projecting points 3 to 40 m away, spread over
+    the image, through that calibration's ``P2`` and ``P3``: the x distance gives their
+    depths 0.01 % short on average, the ``tx`` difference 0.45 % too far (KITTI raw
+    2011_09_26: 0.53271 against 0.53273 m, the cameras 0.2 mm apart along the axis).
+    Where the two matrices have different principal points, their difference
     ``P_left[0, 2] - P_right[0, 2]`` is the camera's ``disparity_offset``.
 
     Every layout makes its camera here, so the checks are made once: the intrinsics
-    (`check_intrinsics`), the ``tx`` of both and the right ``cx`` finite, and a positive
-    baseline (one that is not, the right camera not to the right, means swapped images
-    or a sign error in the calibration). Each raises `DatasetError` naming ``source``,
-    the calibration file, and ``keys``, what the two matrices are called there.
+    (`check_intrinsics`), the ``tx`` and ``tz`` of both and the right ``cx`` finite, and a
+    positive baseline (one that is not, the right camera not to the right, means swapped
+    images or a sign error in the calibration). Each raises `DatasetError` naming
+    ``source``, the calibration file, and ``keys``, what the two matrices are called there.
     """
     check_intrinsics(P_left, (width, height), source, keys[0])
-    _require_finite(source, keys[0], {"tx": float(P_left[0, 3])})
-    _require_finite(source, keys[1], {"tx": float(P_right[0, 3]), "cx": float(P_right[0, 2])})
+    _require_finite(source, keys[0], {"tx": float(P_left[0, 3]), "tz": float(P_left[2, 3])})
+    _require_finite(
+        source, keys[1], {"tx": float(P_right[0, 3]), "cx": float(P_right[0, 2]), "tz": float(P_right[2, 3])}
+    )
     fx = float(P_left[0, 0])
-    baseline = float(P_left[0, 3] - P_right[0, 3]) / fx
+    baseline = _x_offset(P_left, fx) - _x_offset(P_right, fx)
     if not baseline > 0.0:
         raise DatasetError(
             f"{source}: the right camera is not to the right of the left one "
@@ -228,3 +242,21 @@ def stereo_camera_from_projections(
         height=int(height),
         disparity_offset=float(P_left[0, 2] - P_right[0, 2]),
     )
+
+
+def _x_offset(P: np.ndarray, fx: float) -> float:
+    """``t[0]`` [m] of a (3, 4) projection ``P = K [I | t]`` without skew, of focal length ``fx`` [px]."""
+    return float(P[0, 3] - P[0, 2] * P[2, 3]) / fx
+
+
+def camera_from_reference(P: np.ndarray) -> np.ndarray:
+    """(4, 4) ``T_c_ref`` of the rectified camera whose (3, 4) projection ``P = K [I | t]``
+    maps points of the reference camera's rectified frame: ``[I | K^-1 P[:, 3]]``.
+
+    Rectified cameras share the reference's orientation, so the pose is a translation
+    (the identity for the reference itself, ``P = K [I | 0]``). KITTI's colour left camera
+    (``P2``: ``t`` = (0.061, -0.001, 0.006) m on sequence 04) sits 6 cm to the left of the
+    grey one (cam0, the frame of the ground truth): its centre, ``-t`` in cam0, has x < 0.
+    ``K`` = ``P[:, :3]`` must be invertible (`check_intrinsics` passed).
+    """
+    return make_pose(np.eye(3), np.linalg.solve(P[:, :3], P[:, 3]))

@@ -2,19 +2,24 @@
 
 - Images: ``image_00/data/*.png`` (left grey) and ``image_01/data/*.png`` (right grey),
   synced and rectified, paired by file name (`pld_slam.datasets.files.paired_images`):
-  a file without a partner of the same name raises, naming it.
+  a file without a partner of the same name raises, naming it. Or the colour pair,
+  ``image_02/data/`` and ``image_03/data/`` (read as grey), where the drive has no
+  ``image_00/`` or ``dataset.cameras`` asks for it (`pld_slam.datasets.kitti_cameras`).
 - Frame rate: KITTI's nominal 10 Hz (`pld_slam.datasets.kitti_odometry.FRAME_RATE`).
-- Times: ``image_00/timestamps.txt``, datetimes such as ``2011-09-26 13:04:32.351950336``,
-  read as UTC seconds since the Unix epoch; the whole seconds and the nanoseconds are
-  added once in float64, which keeps them to float64's resolution (about 0.2 us).
+- Times: ``image_00/timestamps.txt`` (colour: ``image_02/``), datetimes such as
+  ``2011-09-26 13:04:32.351950336``, read as UTC seconds since the Unix epoch; the whole
+  seconds and the nanoseconds are added once in float64, which keeps them to float64's
+  resolution (about 0.2 us).
 - Camera: ``P_rect_00`` and ``P_rect_01`` of ``calib_cam_to_cam.txt`` one folder up
-  (``S_rect_00`` gives the image size).
+  (``S_rect_00`` gives the image size); colour: ``P_rect_02``, ``P_rect_03``, ``S_rect_02``.
 - Ground truth (when ``oxts/data/`` exists): one OXTS packet per frame (in natural name
   order, as the images), turned into poses as the KITTI raw devkit's
   ``convertOxtsToPose`` does (Mercator projection scaled by the
   first latitude, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), then moved from the IMU to the
   rectified left camera with ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu``
-  (``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``):
+  (``calib_velo_to_cam.txt``, ``calib_imu_to_velo.txt``; the colour pair's left camera
+  cam2 is ``T_cam2rect_imu = T_cam2rect_cam0rect T_cam0rect_imu``, the first factor from
+  ``P_rect_02``, `pld_slam.datasets.calibration.camera_from_reference`):
   ``T_w_c_i = T_c_imu inv(T_oxts(t_0)) T_oxts(t_i) inv(T_c_imu)``, so the first is
   identity. The ``_sync`` product pairs packet i with image i, but the packet was taken
   at its own time (``oxts/timestamps.txt``), -5 to +5 ms from the image's on drive 0005
@@ -37,10 +42,12 @@ from pld_slam.datasets.base import ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import (
     PINHOLE_ENTRIES,
     Calibration,
+    camera_from_reference,
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
 from pld_slam.datasets.files import natural_sorted, paired_image_folders, read_times
+from pld_slam.datasets.kitti_cameras import CameraPair, chosen_pair
 from pld_slam.datasets.kitti_odometry import FRAME_RATE
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import interpolate_poses, inverse, make_pose
@@ -49,8 +56,11 @@ from pld_slam.trajectory import Trajectory
 LAYOUT = "kitti_raw"
 EXPECTED = (
     "KITTI raw (DATE_drive_NNNN_sync/ with image_00/data/, image_01/data/, "
-    "image_00/timestamps.txt, and calib_cam_to_cam.txt one folder up)"
+    "image_00/timestamps.txt or the same of image_02/, image_03/, and calib_cam_to_cam.txt one folder up)"
 )
+
+_SIZE_KEYS = {"grey": "S_rect_00", "colour": "S_rect_02"}
+"""The key of each pair's rectified image size (width, height) [px] in ``calib_cam_to_cam.txt``."""
 
 EARTH_RADIUS = 6378137.0
 """Earth radius [m] of the devkit's Mercator projection."""
@@ -60,29 +70,29 @@ _OXTS_POSE_FIELDS = ("lat", "lon", "alt", "roll", "pitch", "yaw")
 
 
 def matches(folder: Path) -> bool:
-    """Whether ``folder`` looks like a KITTI raw drive (it has ``image_00/``)."""
-    return (folder / "image_00").is_dir()
+    """Whether ``folder`` looks like a KITTI raw drive (it has ``image_00/`` or ``image_02/``)."""
+    return (folder / "image_00").is_dir() or (folder / "image_02").is_dir()
 
 
-def load(folder: Path) -> StereoSequence:
-    """Open the KITTI raw drive in ``folder`` (see the module docstring)."""
+def camera_pairs(folder: Path) -> tuple[CameraPair, CameraPair]:
+    """The grey and the colour pair of the drive ``folder``."""
+    return (
+        CameraPair("grey", folder / "image_00" / "data", folder / "image_01" / "data", ("P_rect_00", "P_rect_01")),
+        CameraPair("colour", folder / "image_02" / "data", folder / "image_03" / "data", ("P_rect_02", "P_rect_03")),
+    )
+
+
+def load(folder: Path, cameras: str = "auto") -> StereoSequence:
+    """Open the KITTI raw drive in ``folder`` from the pair ``cameras`` names
+    (`pld_slam.datasets.kitti_cameras.chosen_pair`; see the module docstring)."""
     folder = folder.resolve()
-    left_paths, right_paths = paired_image_folders(
-        folder / "image_00" / "data", folder / "image_01" / "data", (".png",)
-    )
-    timestamps = read_times(
-        folder / "image_00" / "timestamps.txt", len(left_paths), parse_line=datetime_seconds
-    )
+    pair = chosen_pair(*camera_pairs(folder), cameras)
+    left_paths, right_paths = paired_image_folders(pair.left, pair.right, (".png",))
+    timestamps = read_times(pair.left.parent / "timestamps.txt", len(left_paths), parse_line=datetime_seconds)
     cam_to_cam = read_kitti_calibration(folder.parent / "calib_cam_to_cam.txt")
-    width, height = cam_to_cam.array("S_rect_00", (2,)).astype(int)
-    camera = stereo_camera_from_projections(
-        cam_to_cam.array("P_rect_00", (3, 4), PINHOLE_ENTRIES),
-        cam_to_cam.array("P_rect_01", (3, 4), PINHOLE_ENTRIES),
-        width,
-        height,
-        source=cam_to_cam.path,
-        keys=("P_rect_00", "P_rect_01"),
-    )
+    width, height = cam_to_cam.array(_SIZE_KEYS[pair.name], (2,)).astype(int)
+    P_left, P_right = (cam_to_cam.array(key, (3, 4), PINHOLE_ENTRIES) for key in pair.keys)
+    camera = stereo_camera_from_projections(P_left, P_right, width, height, source=cam_to_cam.path, keys=pair.keys)
     return StereoSequence(
         name=f"kitti_raw_{folder.name.removesuffix('_sync')}",
         layout=LAYOUT,
@@ -90,8 +100,9 @@ def load(folder: Path) -> StereoSequence:
         camera=camera,
         timestamps=timestamps,
         frame_rate=FRAME_RATE,
-        frames=ImageFiles(left_paths, right_paths, camera.size),
-        groundtruth=_groundtruth(folder, timestamps, cam_to_cam),
+        frames=ImageFiles(left_paths, right_paths, camera.size, pair.colour),
+        groundtruth=_groundtruth(folder, timestamps, cam_to_cam, camera_from_reference(P_left)),
+        cameras=pair.name,
     )
 
 
@@ -107,9 +118,12 @@ def datetime_seconds(text: str) -> float:
 
 
 def _groundtruth(
-    folder: Path, timestamps: np.ndarray, cam_to_cam: Calibration
+    folder: Path, timestamps: np.ndarray, cam_to_cam: Calibration, T_c_cam0rect: np.ndarray
 ) -> Trajectory | None:
-    """``T_w_c`` of the rectified left camera from OXTS, first = identity; None without OXTS."""
+    """``T_w_c`` of the pair's rectified left camera ``c`` from OXTS, first = identity; None without OXTS.
+
+    ``T_c_cam0rect`` (4, 4) is rectified cam0's pose in ``c`` (the identity for the grey pair).
+    """
     oxts_folder = folder / "oxts" / "data"
     if not oxts_folder.is_dir():
         return None
@@ -121,7 +135,7 @@ def _groundtruth(
     T_w_imu = oxts_poses(np.array([read_oxts_pose_fields(path) for path in packet_paths]))
     T_w_imu = _at_image_times(T_w_imu, folder / "oxts" / "timestamps.txt", timestamps)
     T_imu0_imu = inverse(T_w_imu[0]) @ T_w_imu
-    T_c_imu = cam0_rect_from_imu(folder.parent, cam_to_cam)
+    T_c_imu = T_c_cam0rect @ cam0_rect_from_imu(folder.parent, cam_to_cam)
     # The exact matrix inverse, not se3.inverse: the calibration rotations are printed to
     # 7 digits, ~1e-7 off SO(3), and a transpose would leave the first pose off identity.
     T_w_c = T_c_imu @ T_imu0_imu @ np.linalg.inv(T_c_imu)

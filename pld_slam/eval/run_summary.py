@@ -242,6 +242,7 @@ def summarise_run(
     return {
         "sequence": sequence.name,
         "layout": sequence.layout,
+        "cameras": sequence.cameras,
         "root": str(sequence.root),
         "frames": len(records),
         "frames_in_sequence": len(sequence),

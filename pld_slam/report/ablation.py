@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from pld_slam.datasets import open_sequence
+from pld_slam.datasets import open_sequence, with_cameras
 from pld_slam.io.run_output import TRAJECTORY_TUM
 from pld_slam.io.trajectory import read_tum
 from pld_slam.report.cells import CellSpec, plan_cells
@@ -32,6 +32,7 @@ from pld_slam.report.store import (
 )
 from pld_slam.report.suite import Suite
 from pld_slam.report.tables import PaperTable, paper_table, to_csv, to_latex, to_markdown
+from pld_slam.run_config import load_run_config
 
 RESULTS = "results.csv"
 
@@ -42,12 +43,18 @@ def prepare_ablation(
 ) -> list[CellSpec]:
     """Open the sequences, plan every cell, and write ``ablation.json`` and the ground truths.
 
+    A KITTI sequence is read from the pair ``overrides`` choose (``dataset.cameras``), so
+    that its ground truth is of the camera every cell runs on (`plan_cells` refuses a
+    variant choosing another).
+
     Raises
     ------
     PldSlamError
         For an unreadable sequence or an invalid cell config, before anything runs.
     """
     sequences = [open_sequence(Path(folder)) for folder in sequence_dirs]
+    sequences = [with_cameras(sequence, load_run_config(sequence, (), overrides).config.dataset.cameras)
+                 for sequence in sequences]  # the pair --set dataset.cameras chooses, and its ground truth
     cells = plan_cells(sequences, suite, overrides, max_frames)
     labels = list(dict.fromkeys(spec.sequence for spec in cells))
     write_ablation(out, suite, labels, [str(Path(d).resolve()) for d in sequence_dirs])

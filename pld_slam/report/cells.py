@@ -45,7 +45,7 @@ from pathlib import Path
 
 from pld_slam import __version__
 from pld_slam.config import Config, config_to_dict, dump_config
-from pld_slam.datasets import StereoSequence
+from pld_slam.datasets import StereoSequence, require_cameras
 from pld_slam.frame_extraction import die_with_parent
 from pld_slam.loop.loop_closing import check_vocabulary_given
 from pld_slam.report.suite import Suite
@@ -176,7 +176,9 @@ def plan_cells(
     ------
     ConfigError
         When a cell's config is invalid (e.g. ``loop.detector: bow`` without a
-        vocabulary): before anything runs.
+        vocabulary), or asks for another stereo pair than its sequence is read from
+        (``dataset.cameras``: the ablation keeps one ground truth per sequence): before
+        anything runs.
     """
     cells = []
     for sequence, label in zip(sequences, unique_labels(sequences), strict=True):
@@ -184,6 +186,9 @@ def plan_cells(
         for variant in suite.variants:
             config = load_run_config(sequence, (), (*overrides, *variant.overrides)).config
             check_vocabulary_given(config)
+            require_cameras(sequence, config.dataset.cameras,
+                            f"variant {variant.name} cannot choose the pair, as the ablation has one ground truth "
+                            "per sequence (ablate --set dataset.cameras=... chooses it for every cell)")
             cells.append(CellSpec(
                 key=cell_key(identity, config, max_frames),
                 sequence=label,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.datasets import StereoFrame, StereoSequence, with_cameras
 from pld_slam.errors import OutputError
 from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.plots import plot_trajectory_top_view
@@ -68,8 +68,9 @@ def run_and_write(
     """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
 
     The configuration is `load_run_config`'s: defaults, the dataset family's file, then
-    ``config_paths`` and ``overrides``; its ``dataset.scale`` scales the sequence
-    (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats;
+    ``config_paths`` and ``overrides``; its ``dataset.cameras`` picks KITTI's stereo pair
+    (`pld_slam.datasets.with_cameras`: the folder reopened from the colour pair) and its
+    ``dataset.scale`` scales the sequence (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats;
     ``save_dynamic`` a folder for each frame's dynamic-label overlay (`overlay_writer`).
     A sequence with moving-object masks has its dynamic labels scored against them
     (`MaskScores`), the summary's precision and recall.
@@ -89,7 +90,7 @@ def run_and_write(
         The run's summary (`pld_slam.eval.run_summary.summarise_run`), as written to ``summary.json``.
     """
     run_config = load_run_config(sequence, config_paths, overrides)
-    sequence = sequence.scaled(run_config.config.dataset.scale)
+    sequence = with_cameras(sequence, run_config.config.dataset.cameras).scaled(run_config.config.dataset.scale)
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
