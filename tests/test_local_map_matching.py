@@ -17,6 +17,7 @@ from pld_slam.geometry.se3 import make_pose, so3_exp, transform_points
 from pld_slam.matching.frames import predict_segments
 from pld_slam.matching.projection import (
     LandmarkSnapshot,
+    ProjectionSearch,
     match_map_lines,
     match_map_lines_in_frames,
     match_map_points,
@@ -25,6 +26,7 @@ from pld_slam.matching.projection import (
 
 CAMERA = StereoCamera(fx=300.0, fy=300.0, cx=320.0, cy=120.0, baseline=0.5, width=640, height=240)
 CONFIG = load_config()
+SEARCH = ProjectionSearch.of(CONFIG)
 POSES = np.stack([
     make_pose(so3_exp(np.array([0.0, 0.02 * k, 0.0])), np.array([0.1 * k, 0.0, -0.5 * k])) for k in range(3)
 ])
@@ -102,10 +104,10 @@ def assert_same_matches(together, alone):
 def test_points_matched_into_several_frames_at_once_match_as_in_each_frame_alone(points):
     snapshot, frames, truths = points
     max_distance, ratio = CONFIG.mapping.max_point_distance, CONFIG.mapping.ratio
-    together = match_map_points_in_frames(CAMERA, POSES, snapshot, frames, CONFIG, max_distance, ratio)
+    together = match_map_points_in_frames(CAMERA, POSES, snapshot, frames, SEARCH, max_distance, ratio)
     assert len(together) == len(frames)
     for T_c_w, frame, truth, found in zip(POSES, frames, truths, together):
-        assert_same_matches(found, match_map_points(CAMERA, T_c_w, snapshot, frame, CONFIG, max_distance, ratio))
+        assert_same_matches(found, match_map_points(CAMERA, T_c_w, snapshot, frame, SEARCH, max_distance, ratio))
         assert len(found.matches) >= 40
         assert np.all(found.matches.current < 60), "a distractor matched"
         np.testing.assert_array_equal(found.matches.previous, truth[found.matches.current])
@@ -113,9 +115,9 @@ def test_points_matched_into_several_frames_at_once_match_as_in_each_frame_alone
 
 def test_lines_matched_into_several_frames_at_once_match_as_in_each_frame_alone(lines):
     snapshot, frames = lines
-    together = match_map_lines_in_frames(CAMERA, POSES, snapshot, frames, CONFIG)
+    together = match_map_lines_in_frames(CAMERA, POSES, snapshot, frames, SEARCH)
     for T_c_w, frame, found in zip(POSES, frames, together):
-        assert_same_matches(found, match_map_lines(CAMERA, T_c_w, snapshot, frame, CONFIG))
+        assert_same_matches(found, match_map_lines(CAMERA, T_c_w, snapshot, frame, SEARCH))
         assert len(found.matches) >= 15
 
 
@@ -123,7 +125,7 @@ def test_a_frame_without_keypoints_among_others_finds_nothing_and_sees_nothing(p
     snapshot, frames, _ = points
     empty = LeftKeypoints.empty()
     together = match_map_points_in_frames(
-        CAMERA, POSES, snapshot, [frames[0], empty, frames[2]], CONFIG,
+        CAMERA, POSES, snapshot, [frames[0], empty, frames[2]], SEARCH,
         CONFIG.mapping.max_point_distance, CONFIG.mapping.ratio,
     )
     assert len(together[1].matches) == 0 and not together[1].visible.any()

@@ -226,8 +226,8 @@ def test_fusion_tests_a_line_in_both_images_as_the_solvers_measure_it():
     centre = inverse(keyframe.T_c_w)[:3, 3]
     farther = centre + 2.0 * (truth - centre)  # the same rays, twice as deep
     features = np.arange(N_LINES)
-    assert line_reprojects(keyframe, truth, features, CAMERA, Config()).all()
-    assert not line_reprojects(keyframe, farther, features, CAMERA, Config()).any()
+    assert line_reprojects(keyframe, truth, features, CAMERA, Config().tracking).all()
+    assert not line_reprojects(keyframe, farther, features, CAMERA, Config().tracking).any()
 
 
 def test_a_recent_landmark_found_in_fewer_than_a_quarter_of_the_frames_that_should_see_it_is_culled():

@@ -15,7 +15,8 @@ from pld_slam.matching.prior_free import MIN_PNP_INLIERS, match_without_prior, p
 POINTS_W = scene_points(120, seed=21)
 DESCRIPTORS = random_descriptors(120, seed=22)
 T_C_W = se3_exp(np.array([0.8, -0.1, 2.5, 0.02, 0.15, -0.01]))  # 2.6 m and 9 deg from the identity
-CONFIG = Config()
+BOUNDS = (Config().tracking.max_point_distance, Config().system.seed)
+"""The descriptor bound and seed of a default run."""
 
 
 def frame_seeing(points_w: np.ndarray, descriptors: np.ndarray):
@@ -36,7 +37,7 @@ def test_the_pose_is_found_from_descriptor_matches_alone():
     seen = in_view(POINTS_W)
     assert seen.sum() > 2 * MIN_PNP_INLIERS
     keypoints = frame_seeing(POINTS_W[seen], DESCRIPTORS[seen])
-    pose = pose_without_prior(CAMERA, keypoints, POINTS_W, DESCRIPTORS, CONFIG)
+    pose = pose_without_prior(CAMERA, keypoints, POINTS_W, DESCRIPTORS, *BOUNDS)
     assert pose is not None and pose.inliers >= MIN_PNP_INLIERS
     error = se3_log(pose.T_c_w @ np.linalg.inv(T_C_W))
     assert np.linalg.norm(error[:3]) < 1e-3 and np.linalg.norm(error[3:]) < 1e-4
@@ -54,12 +55,12 @@ def test_matching_pairs_each_keypoint_with_its_own_map_point_once():
 
 def test_unrelated_descriptors_give_no_pose():
     keypoints = frame_seeing(POINTS_W, random_descriptors(120, seed=99))
-    assert pose_without_prior(CAMERA, keypoints, POINTS_W, DESCRIPTORS, CONFIG) is None
+    assert pose_without_prior(CAMERA, keypoints, POINTS_W, DESCRIPTORS, *BOUNDS) is None
 
 
 def test_the_same_input_gives_the_same_pose():
     keypoints = frame_seeing(POINTS_W, DESCRIPTORS)
     noisy = POINTS_W + np.random.default_rng(5).normal(0.0, 0.05, POINTS_W.shape)
-    first = pose_without_prior(CAMERA, keypoints, noisy, DESCRIPTORS, CONFIG)
-    second = pose_without_prior(CAMERA, keypoints, noisy, DESCRIPTORS, CONFIG)
+    first = pose_without_prior(CAMERA, keypoints, noisy, DESCRIPTORS, *BOUNDS)
+    second = pose_without_prior(CAMERA, keypoints, noisy, DESCRIPTORS, *BOUNDS)
     assert first is not None and np.array_equal(first.T_c_w, second.T_c_w) and first.inliers == second.inliers

@@ -75,7 +75,7 @@ from pld_slam.loop.vocabulary import Vocabulary
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
-from pld_slam.matching.fusion import fuse
+from pld_slam.matching.fusion import FusionOptions, fuse
 from pld_slam.optim.pose_only import PoseOnlyOptions
 
 
@@ -160,6 +160,7 @@ class LoopClosing:
         self.detector = make_detector(world_map, config)
         self._camera = camera
         self._config = config
+        self._fusion = FusionOptions.of(config)
         self._pose_options = PoseOnlyOptions(
             use_line_vertical=config.lines.vertical_error, use_line_horizontal=config.lines.horizontal_error
         )
@@ -290,7 +291,7 @@ class LoopClosing:
             fused += self.map.observe_or_fuse(kind, keyframe, features, loop_ids[features], keep_matched=True)
         for kind, ids in zip(self.map.kinds, (check.local_map.points.ids, check.local_map.lines.ids)):
             fused += fuse(self.map, kind, [self.map.keyframes[keyframe_id] for keyframe_id in group], ids,
-                          self._camera, self._config)
+                          self._camera, self._fusion)
         for keyframe_id in group:
             self.map.attach_to_tree(self.map.keyframes[keyframe_id])
         return fused

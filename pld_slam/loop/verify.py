@@ -118,7 +118,8 @@ def geometric_check(
     """Locate ``keyframe`` in the candidate's local map (module docstring); None when PnP finds no pose."""
     present = present_landmarks(world_map, keyframe)
     points = local_map_of(world_map, (candidate.id,), present).points
-    found = pose_without_prior(camera, keyframe.features.keypoints, points.geometry, points.descriptors, config,
+    found = pose_without_prior(camera, keyframe.features.keypoints, points.geometry, points.descriptors,
+                               config.tracking.max_point_distance, config.system.seed,
                                min_matches=config.loop.min_inliers)
     if found is None:
         return None

@@ -144,7 +144,7 @@ from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
-from pld_slam.matching.fusion import fuse
+from pld_slam.matching.fusion import FusionOptions, fuse
 from pld_slam.timing import StageClock
 
 _SECOND_NEIGHBOURS = 5
@@ -196,6 +196,7 @@ class LocalMapping:
         self.map = world_map
         self._camera = camera
         self._config = config
+        self._fusion = FusionOptions.of(config)
         self._recent = _Recent()
         self._last_local_ba_frame: int | None = None
         """Frame index of the keyframe of the last local BA (None before the first)."""
@@ -304,9 +305,9 @@ class LocalMapping:
         changes = 0
         for kind in self.map.kinds:
             own = kind.live_ids(getattr(keyframe, kind.IDS_FIELD))
-            changes += fuse(self.map, kind, targets, own, self._camera, self._config)
+            changes += fuse(self.map, kind, targets, own, self._camera, self._fusion)
             theirs = np.setdiff1d(kind.observed_by(targets), own)
-            changes += fuse(self.map, kind, [keyframe], theirs, self._camera, self._config)
+            changes += fuse(self.map, kind, [keyframe], theirs, self._camera, self._fusion)
             self._refresh(kind, kind.live_ids(getattr(keyframe, kind.IDS_FIELD)))
         for touched in (keyframe, *targets):
             self.map.attach_to_tree(touched)

@@ -13,10 +13,11 @@ the line vertical error in both images, as the solvers measure them).
 """
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from pld_slam.config import Config
+from pld_slam.config import Config, PointsConfig, TrackingConfig
 from pld_slam.frontend import LeftKeypoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.keyframe import KeyFrame
@@ -24,15 +25,35 @@ from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import FrameMatches
 from pld_slam.matching.observations import line_observations, point_observations
-from pld_slam.matching.projection import LandmarkSnapshot, match_map_lines_in_frames, match_map_points_in_frames
+from pld_slam.matching.projection import (
+    LandmarkSnapshot,
+    ProjectionSearch,
+    match_map_lines_in_frames,
+    match_map_points_in_frames,
+)
 from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
 from pld_slam.optim.point_reprojection import MIN_DEPTH
 from pld_slam.optim.robust import CHI2_95_2DOF, CHI2_95_3DOF, CHI2_95_4DOF
 
 
+@dataclass(frozen=True)
+class FusionOptions:
+    """What fusion uses of the configuration: the projection search, the point sigmas (``points``) and
+    tracking's descriptor bounds, ratio and line sigma (``tracking``)."""
+
+    search: ProjectionSearch
+    points: PointsConfig
+    tracking: TrackingConfig
+
+    @classmethod
+    def of(cls, config: Config) -> "FusionOptions":
+        """The fusion ``config`` sets."""
+        return cls(ProjectionSearch.of(config), config.points, config.tracking)
+
+
 def fuse(
     world_map: Map, kind: Landmarks, keyframes: Sequence[KeyFrame], landmark_ids: np.ndarray, camera: StereoCamera,
-    config: Config,
+    options: FusionOptions,
 ) -> int:
     """Project ``landmark_ids`` (K,) of ``kind`` into each of ``keyframes`` and add or fuse what matches in
     ``world_map``; returns the changes made.
@@ -57,13 +78,13 @@ def fuse(
     poses = np.stack([keyframe.T_c_w for keyframe in keyframes])
     features = [getattr(keyframe.features, kind.FEATURES_FIELD) for keyframe in keyframes]
     if isinstance(kind, PointLandmarks):
-        found = match_map_points_in_frames(camera, poses, snapshot, features, config,
-                                           config.tracking.max_point_distance, config.tracking.ratio)
+        found = match_map_points_in_frames(camera, poses, snapshot, features, options.search,
+                                           options.tracking.max_point_distance, options.tracking.ratio)
     else:
-        found = match_map_lines_in_frames(camera, poses, snapshot, features, config)
+        found = match_map_lines_in_frames(camera, poses, snapshot, features, options.search)
     matches = [each.matches for each in found]
     changes = 0
-    fits_of = _reprojects(kind, keyframes, poses, snapshot, matches, camera, config)
+    fits_of = _reprojects(kind, keyframes, poses, snapshot, matches, camera, options)
     for keyframe, matched, fits in zip(keyframes, matches, fits_of):
         changes += world_map.observe_or_fuse(kind, keyframe, matched.current[fits],
                                              snapshot.ids[matched.previous[fits]], keep_matched=False)
@@ -72,7 +93,7 @@ def fuse(
 
 def _reprojects(
     kind: Landmarks, keyframes: Sequence[KeyFrame], poses: np.ndarray, snapshot: LandmarkSnapshot,
-    matches: list[FrameMatches], camera: StereoCamera, config: Config,
+    matches: list[FrameMatches], camera: StereoCamera, options: FusionOptions,
 ) -> list[np.ndarray]:
     """Per keyframe, whether each landmark of ``matches`` (snapshot rows to the keyframe's features)
     reprojects onto its feature within the chi-square bound ((K,) bool per keyframe); ``poses``
@@ -86,19 +107,19 @@ def _reprojects(
         first_feature = np.cumsum(sizes) - sizes
         features = np.concatenate([matched.current + first for matched, first in zip(matches, first_feature)])
         geometry = snapshot.geometry[np.concatenate([matched.previous for matched in matches])]
-        observed = point_observations(geometry, LeftKeypoints.concatenate(keypoints), features, config.points)
+        observed = point_observations(geometry, LeftKeypoints.concatenate(keypoints), features, options.points)
         rows = WhitenedRows.of(observed, LineObservations.empty(), LineObservations.empty())
         pose_of_row = np.repeat(np.arange(len(keyframes)), counts)
         evaluation = rows.evaluate(camera, poses, poses, MIN_DEPTH, pose_of_row, np.zeros(0, dtype=np.int64))
         point_chi2, _, _ = rows.chi2(evaluation)
         fits = rows.point_inliers(point_chi2, CHI2_95_3DOF, CHI2_95_2DOF)
         return np.split(fits, np.cumsum(counts)[:-1])
-    return [line_reprojects(keyframe, snapshot.geometry[matched.previous], matched.current, camera, config)
+    return [line_reprojects(keyframe, snapshot.geometry[matched.previous], matched.current, camera, options.tracking)
             for keyframe, matched in zip(keyframes, matches)]
 
 
 def line_reprojects(
-    keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray, camera: StereoCamera, config: Config
+    keyframe: KeyFrame, geometry: np.ndarray, features: np.ndarray, camera: StereoCamera, config: TrackingConfig
 ) -> np.ndarray:
     """Whether each line (K, 2, 3) reprojects onto its matched line (K,) of ``keyframe`` within the
     chi-square bound of its vertical error (left and right image, as the solvers measure it)."""

@@ -9,7 +9,7 @@ frame-pair poses (`pld_slam.stereo_calibration`).
 
 import numpy as np
 
-from pld_slam.config import Config, PointsConfig
+from pld_slam.config import PointsConfig, TrackingConfig
 from pld_slam.frontend import LeftKeypoints, StereoLines, StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.optim.line_reprojection import endpoints_away_from_border
@@ -32,7 +32,8 @@ def point_observations(
 
 
 def line_observations(
-    camera: StereoCamera, endpoints_3d: np.ndarray, current: StereoLines, current_index: np.ndarray, config: Config
+    camera: StereoCamera, endpoints_3d: np.ndarray, current: StereoLines, current_index: np.ndarray,
+    config: TrackingConfig,
 ) -> LineObservations:
     """3D segments (K, 2, 3), start then end, observed as current stereo lines ``current_index`` (K,).
 
@@ -48,8 +49,8 @@ def line_observations(
         end_w=endpoints_3d[:, 1],
         start_px=start_px,
         end_px=end_px,
-        sigma_px=np.full(len(current_index), config.tracking.line_sigma_px),
-        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
+        sigma_px=np.full(len(current_index), config.line_sigma_px),
+        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.border_margin_px),
         right_start_px=right[:, :2],
         right_end_px=right[:, 2:],
     )

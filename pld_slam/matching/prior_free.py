@@ -24,7 +24,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pld_slam.config import Config
 from pld_slam.frontend import LeftKeypoints
 from pld_slam.frontend.descriptors import CandidateMatches, unique_train
 from pld_slam.geometry.camera import StereoCamera
@@ -92,12 +91,14 @@ def pose_without_prior(
     keypoints: LeftKeypoints,
     points_w: np.ndarray,
     descriptors: np.ndarray,
-    config: Config,
+    max_distance: int,
+    seed: int,
     min_matches: int = MIN_PNP_INLIERS,
 ) -> PnpPose | None:
     """The frame's pose from map points (N, 3) with descriptors (N, 32), without a prior (module
-    docstring); None without ``min_matches`` descriptor matches to try PnP on."""
-    matches = match_without_prior(keypoints, descriptors, config.tracking.max_point_distance)
+    docstring): descriptor matches within ``max_distance`` bits, PnP-RANSAC seeded by ``seed``; None
+    without ``min_matches`` matches to try PnP on."""
+    matches = match_without_prior(keypoints, descriptors, max_distance)
     if len(matches) < min_matches:
         return None
-    return pnp_pose(camera, points_w[matches.previous], keypoints.uv[matches.current], config.system.seed)
+    return pnp_pose(camera, points_w[matches.previous], keypoints.uv[matches.current], seed)

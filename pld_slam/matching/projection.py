@@ -25,7 +25,11 @@ ratio test (tracking's bounds: `pld_slam.tracking.local_map`; fusion's:
 `pld_slam.matching.fusion`).
 
 Lines: as frame-to-frame line matching (`pld_slam.matching.frames.match_predicted_segments`),
-in a window of ``mapping.line_search_radius_px`` around the predicted midpoint.
+in a window of ``mapping.line_search_radius_px`` around the predicted midpoint, within
+tracking's line bounds.
+
+What a search uses of the configuration is a `ProjectionSearch`; the point descriptor
+bound and ratio are the caller's.
 """
 
 from collections.abc import Sequence
@@ -50,6 +54,44 @@ from pld_slam.matching.windows import pairs_within
 
 _NEAREST_SCALE, _FARTHEST_SCALE = 0.8, 1.2
 """A point is searched between 0.8 x its nearest and 1.2 x its farthest distance (ORB-SLAM2)."""
+
+
+@dataclass(frozen=True)
+class ProjectionSearch:
+    """What a search by projection uses of the configuration (module docstring).
+
+    Attributes
+    ----------
+    scale_factor, n_levels : the ORB pyramid (``points``): octaves predicted from distance.
+    max_viewing_angle : [deg] largest angle from a landmark's mean viewing direction (``mapping``).
+    point_radius_px : window radius at octave 0 [px] (``mapping.point_search_radius_px``).
+    line_radius_px : window radius around a line's predicted midpoint [px] (``mapping.line_search_radius_px``).
+    line_max_angle_change : [deg], line_max_distance [bits], line_ratio : the line matching bounds
+        (``tracking.line_max_angle_change``, ``tracking.max_line_distance``, ``tracking.ratio``).
+    """
+
+    scale_factor: float
+    n_levels: int
+    max_viewing_angle: float
+    point_radius_px: float
+    line_radius_px: float
+    line_max_angle_change: float
+    line_max_distance: int
+    line_ratio: float
+
+    @classmethod
+    def of(cls, config: Config) -> "ProjectionSearch":
+        """The search ``config`` sets (attributes name their keys)."""
+        return cls(
+            scale_factor=config.points.scale_factor,
+            n_levels=config.points.n_levels,
+            max_viewing_angle=config.mapping.max_viewing_angle,
+            point_radius_px=config.mapping.point_search_radius_px,
+            line_radius_px=config.mapping.line_search_radius_px,
+            line_max_angle_change=config.tracking.line_max_angle_change,
+            line_max_distance=config.tracking.max_line_distance,
+            line_ratio=config.tracking.ratio,
+        )
 
 
 @dataclass(frozen=True)
@@ -91,17 +133,17 @@ class MapMatches:
 
 
 def match_map_points(
-    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, current: LeftKeypoints, config: Config,
-    max_distance: int, ratio: float,
+    camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, current: LeftKeypoints,
+    search: ProjectionSearch, max_distance: int, ratio: float,
 ) -> MapMatches:
     """Match the snapshot's points to the current left keypoints around their projections, within
     ``max_distance`` bits of Hamming distance and passing the ``ratio`` test (module docstring)."""
-    return match_map_points_in_frames(camera, T_c_w[None], points, (current,), config, max_distance, ratio)[0]
+    return match_map_points_in_frames(camera, T_c_w[None], points, (current,), search, max_distance, ratio)[0]
 
 
 def match_map_points_in_frames(
     camera: StereoCamera, T_c_w: np.ndarray, points: LandmarkSnapshot, frames: Sequence[LeftKeypoints],
-    config: Config, max_distance: int, ratio: float,
+    search: ProjectionSearch, max_distance: int, ratio: float,
 ) -> list[MapMatches]:
     """`match_map_points` into F >= 1 frames at once: poses ``T_c_w`` (F, 4, 4) and left keypoints
     ``frames`` (F); a `MapMatches` per frame, each what a search of that frame alone finds.
@@ -111,7 +153,7 @@ def match_map_points_in_frames(
     operations for all of them costs far less than one per neighbour.
     """
     n_points, n_frames, sizes = len(points), len(frames), _sizes(frames)
-    scale, levels = config.points.scale_factor, config.points.n_levels
+    scale, levels = search.scale_factor, search.n_levels
     p_c = np.stack([transform_points(T, points.geometry) for T in T_c_w]).reshape(-1, 3)  # frame by frame
     in_front = p_c[:, 2] > MIN_SEARCH_DEPTH
     stereo_px = camera.project_stereo(np.where(in_front[:, None], p_c, [0.0, 0.0, 1.0]))
@@ -123,10 +165,10 @@ def match_map_points_in_frames(
         & camera.inside_image(stereo_px[:, :2])
         & (distance >= _NEAREST_SCALE * nearest)
         & (distance <= _FARTHEST_SCALE * max_distances)
-        & _within_viewing_angle(T_c_w, points.geometry, points.normals, config.mapping.max_viewing_angle).ravel()
+        & _within_viewing_angle(T_c_w, points.geometry, points.normals, search.max_viewing_angle).ravel()
     )
     octave = predicted_octaves(max_distances, distance, scale, levels)
-    radius = config.mapping.point_search_radius_px * scale ** octave.astype(np.float64)
+    radius = search.point_radius_px * scale ** octave.astype(np.float64)
     keypoints = LeftKeypoints.concatenate(frames)
     query_shift, feature_shift = _frame_strides(camera, n_points, sizes, radius)
     query, train = pairs_within(stereo_px[:, :2] + query_shift, visible, keypoints.uv + feature_shift, radius)
@@ -142,14 +184,15 @@ def match_map_points_in_frames(
 
 
 def match_map_lines(
-    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, current: StereoLines, config: Config
+    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, current: StereoLines, search: ProjectionSearch
 ) -> MapMatches:
     """Match the snapshot's lines to the current stereo lines around their projections (module docstring)."""
-    return match_map_lines_in_frames(camera, T_c_w[None], lines, (current,), config)[0]
+    return match_map_lines_in_frames(camera, T_c_w[None], lines, (current,), search)[0]
 
 
 def match_map_lines_in_frames(
-    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, frames: Sequence[StereoLines], config: Config
+    camera: StereoCamera, T_c_w: np.ndarray, lines: LandmarkSnapshot, frames: Sequence[StereoLines],
+    search: ProjectionSearch,
 ) -> list[MapMatches]:
     """`match_map_lines` into F frames at once, as `match_map_points_in_frames` does for points."""
     n_lines, n_frames, sizes = len(lines), len(frames), _sizes(frames)
@@ -159,15 +202,15 @@ def match_map_lines_in_frames(
     visible = (
         in_front
         & camera.inside_image(segment_midpoints(predicted))
-        & _within_viewing_angle(T_c_w, midpoints, lines.normals, config.mapping.max_viewing_angle).ravel()
+        & _within_viewing_angle(T_c_w, midpoints, lines.normals, search.max_viewing_angle).ravel()
     )
-    radius = config.mapping.line_search_radius_px
+    radius = search.line_radius_px
     query_shift, feature_shift = _frame_strides(camera, n_lines, sizes, radius)
     detected = np.concatenate([frame.endpoints for frame in frames]) + np.tile(feature_shift, 2)
     matches = match_predicted_segments(
         predicted + np.tile(query_shift, 2), visible, np.tile(lines.descriptors, (n_frames, 1)), detected,
         np.concatenate([frame.descriptors for frame in frames]), radius,
-        config.tracking.line_max_angle_change, config.tracking.max_line_distance, config.tracking.ratio,
+        search.line_max_angle_change, search.line_max_distance, search.line_ratio,
     )
     return _per_frame(matches, visible, n_lines, sizes)
 

@@ -73,7 +73,7 @@ from pld_slam.geometry.se3 import transform_points
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import MIN_SEARCH_DEPTH, FrameMatches
 from pld_slam.matching.observations import line_observations, point_observations
-from pld_slam.matching.projection import LandmarkSnapshot, match_map_lines, match_map_points
+from pld_slam.matching.projection import LandmarkSnapshot, ProjectionSearch, match_map_lines, match_map_points
 from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
 from pld_slam.tracking.static_world import static_world_solution
@@ -253,9 +253,10 @@ def track_local_map(
     ``check_static_world``: ``T_c_w_init`` is a trusted pose of the static world (module docstring).
     """
     keypoints = features.keypoints
-    point_matches = match_map_points(camera, T_c_w_init, local_map.points, keypoints, config,
+    search = ProjectionSearch.of(config)
+    point_matches = match_map_points(camera, T_c_w_init, local_map.points, keypoints, search,
                                      config.mapping.max_point_distance, config.mapping.ratio)
-    line_matches = match_map_lines(camera, T_c_w_init, local_map.lines, features.lines, config)
+    line_matches = match_map_lines(camera, T_c_w_init, local_map.lines, features.lines, search)
     map_points = _map_observations(
         local_map.points, _static(point_matches.matches, dynamic_points),
         reference.point_index, reference.point_landmarks, reference.points_w,
@@ -277,7 +278,7 @@ def track_local_map(
         np.concatenate([map_lines.geometry, reference.lines_w[extra_lines]]),
         features.lines,
         np.concatenate([map_lines.current, reference.line_index[extra_lines]]),
-        config,
+        config.tracking,
     )
     solution = optimize_pose_rejecting_outliers(camera, T_c_w_init, points=points, lines=lines, options=pose_options)
     moving_ids = np.zeros(0, dtype=np.int64)

@@ -152,7 +152,7 @@ class ReferenceTracker:
         )
         lines = line_observations(
             self._camera, reference.features.lines.endpoints_c[kept.lines.previous], features.lines,
-            kept.lines.current, self._config,
+            kept.lines.current, self._config.tracking,
         )
         if moving_mask is None:
             solution = optimize_pose_rejecting_outliers(

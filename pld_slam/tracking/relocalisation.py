@@ -81,7 +81,8 @@ def track_from_scratch(
     """
     for local_map in candidates:
         points = local_map.points
-        pose = pose_without_prior(camera, features.keypoints, points.geometry, points.descriptors, config)
+        pose = pose_without_prior(camera, features.keypoints, points.geometry, points.descriptors,
+                                  config.tracking.max_point_distance, config.system.seed)
         if pose is None:
             continue
         tracking = track_local_map(
