@@ -1,5 +1,6 @@
 """The ``pld-slam`` commands: output, JSON keys, exit codes and one-line errors."""
 
+import errno
 import json
 import os
 import re
@@ -19,8 +20,18 @@ from conftest import REPO_ROOT, require
 from evo.tools import file_interface
 
 from pld_slam.datasets import open_sequence
+from pld_slam.errors import OutputError
 from pld_slam.geometry.se3 import make_pose
-from pld_slam.io.trajectory import read_kitti, read_trajectory, read_tum, write_euroc, write_kitti, write_tum
+from pld_slam.io.run_output import PartialTrajectory
+from pld_slam.io.trajectory import (
+    TUM_HEADER,
+    read_kitti,
+    read_trajectory,
+    read_tum,
+    write_euroc,
+    write_kitti,
+    write_tum,
+)
 from pld_slam.synth.writer import write_sequence
 from pld_slam.system import System
 from pld_slam.trajectory import Trajectory
@@ -658,3 +669,71 @@ def test_synth_into_a_folder_under_a_file_is_a_one_line_error(tmp_path):
     result = CliRunner().invoke(cli, ["synth", str(blocker / "seq"), "--frames", "2"])
     assert result.exit_code == 2
     assert result.output.strip().splitlines()[-1].startswith(f"error: {blocker}")
+
+
+class FillingDisk:
+    """A file on a disk that fills after ``room`` bytes: the write that crosses it keeps what fits and raises
+    ENOSPC, as ``write(2)`` on a full disk does; from then on flushing or closing raises ENOSPC too (what a
+    buffered file does with the bytes it could not write), once the file is closed."""
+
+    def __init__(self, file, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data):
+        kept = data[: max(self.room, 0)]
+        self.file.write(kept)
+        self.room -= len(data)
+        if self.room < 0:
+            raise self.full()
+        return len(data)
+
+    def flush(self):
+        self.file.flush()
+        if self.room < 0:
+            raise self.full()
+
+    def close(self):
+        self.file.close()
+        if self.room < 0:
+            raise self.full()
+
+    @staticmethod
+    def full() -> OSError:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name):
+        return getattr(self.file, name)
+
+
+@pytest.fixture
+def partial_disk_fills(monkeypatch):
+    """The partial trajectory's disk fills half way through its third pose row."""
+    original = Path.open
+
+    def open_on_a_filling_disk(path, mode="r", *args, **kwargs):
+        file = original(path, mode, *args, **kwargs)
+        if path.name != "trajectory.partial.tum.txt" or "r" in mode:
+            return file
+        return FillingDisk(file, room=len(TUM_HEADER) + 1 + 2 * 96 + 50)  # the first rows: 95 characters, \n
+
+    monkeypatch.setattr(Path, "open", open_on_a_filling_disk)
+
+
+def test_a_disk_that_fills_mid_run_is_a_one_line_error_naming_the_partial_trajectory(
+        synthetic_sequence, tmp_path, partial_disk_fills):
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {out / 'trajectory.partial.tum.txt'}: cannot write (No space left on device)\n"
+
+
+def test_a_partial_trajectory_on_a_full_disk_keeps_its_whole_rows_and_closes_quietly(tmp_path, partial_disk_fills):
+    partial = PartialTrajectory(tmp_path / "trajectory.partial.tum.txt")
+    partial.start()
+    partial.append(0.0, np.eye(4))
+    partial.append(0.1, make_pose(np.eye(3), [1.0, 2.0, 3.0]))
+    with pytest.raises(OutputError, match="No space left on device"):
+        partial.append(0.2, make_pose(np.eye(3), [123.456, 2.0, 3.0]))
+    partial.close()  # the error above is the one the user gets
+    assert (tmp_path / "trajectory.partial.tum.txt").read_text().endswith("\n")
+    assert len(read_tum(tmp_path / "trajectory.partial.tum.txt")) == 2

@@ -72,10 +72,13 @@ class PartialTrajectory:
 
     The final trajectory files are written once, at the end of a run, so a run killed
     hard (SIGKILL, out of memory, a lost machine) would leave nothing; this file keeps
-    what was tracked until then. Each row is flushed to the operating system as it is
-    written, which survives a killed process (not a power cut: we do not fsync, as that
-    would cost a disk write per frame). The poses are those at tracking time; the final
-    files carry the later corrections of BA and loop closing, so the two may differ.
+    what was tracked until then. Each row goes to the operating system whole, as it is
+    written (the file is unbuffered), which survives a killed process (not a power cut:
+    we do not fsync, as that would cost a disk write per frame). A row that cannot be
+    written whole (a full disk) is cut off again, so the file stays readable to its last
+    whole row, and the error is the run's (`OutputError`). The poses are those at
+    tracking time; the final files carry the later corrections of BA and loop closing,
+    so the two may differ.
 
     Opening the file (`start`) is also the check that the output folder can be created
     and written, done before the first frame so that a bad ``--out`` costs nothing.
@@ -84,31 +87,55 @@ class PartialTrajectory:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._file = None  # opened by start
+        self._whole_rows_bytes = 0  # the file's size up to its last whole row
+        self._write_failed = False
 
     def start(self) -> None:
         """Create the folder and write the `TUM_HEADER` line; `OutputError` when either fails."""
         create_output_folder(self.path.parent)
         try:
-            self._file = self.path.open("w")
-            self._write_line(TUM_HEADER)
+            self._file = self.path.open("wb", buffering=0)
         except OSError as error:
             raise OutputError.from_os_error(self.path, error) from None
+        self._write_row(TUM_HEADER)
 
     def append(self, timestamp: float, T_w_c: np.ndarray) -> None:
-        """Append the TUM row of one frame (time [s], (4, 4) pose) and flush it."""
-        try:
-            self._write_line(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
-        except OSError as error:
-            raise OutputError.from_os_error(self.path, error) from None
+        """Append the TUM row of one frame (time [s], (4, 4) pose)."""
+        self._write_row(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
 
-    def _write_line(self, line: str) -> None:
-        """Write ``line`` and a newline, flushed to the operating system."""
-        self._file.write(line + "\n")
-        self._file.flush()
+    def _write_row(self, line: str) -> None:
+        """Write ``line`` and a newline to the operating system; on an OSError cut the file back to its last
+        whole row and raise `OutputError`."""
+        row = memoryview((line + "\n").encode())
+        try:
+            while row:  # an unbuffered write may take part of a row
+                row = row[self._file.write(row):]
+        except OSError as error:
+            self._write_failed = True
+            self._cut_to_whole_rows()
+            raise OutputError.from_os_error(self.path, error) from None
+        self._whole_rows_bytes = self._file.tell()
+
+    def _cut_to_whole_rows(self) -> None:
+        """Truncate the file after its last whole row (the part of a row a full disk took would make the file
+        unreadable); a failure here leaves it as it is, the write's error being the one reported."""
+        try:
+            self._file.seek(self._whole_rows_bytes)
+            self._file.truncate()
+        except OSError:
+            pass
 
     def close(self) -> None:
-        """Close the file; it stays on disk."""
-        self._file.close()
+        """Close the file; it stays on disk. `OutputError` when closing fails, unless a write failed before
+        (that error is the one the run reports)."""
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+        except OSError as error:
+            if not self._write_failed:
+                raise OutputError.from_os_error(self.path, error) from None
 
     def discard(self) -> None:
         """Close and delete the file, once the final trajectory files hold every frame."""
