@@ -178,7 +178,9 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     Ctrl-C, SIGTERM or an error mid-run still writes the trajectory so far; while the run
     goes, trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run
     is killed, deleted once the final files are written). The files of an earlier run in
-    the output folder are deleted first; other files there are kept. A run that tracks
+    the output folder are deleted first, but for its partial trajectory, kept as
+    trajectory.partial.N.tum.txt; other files there are kept. The folder is locked while
+    the run goes (run.lock): a second run into it is refused. A run that tracks
     none of its frames writes its files, then ends with an error (exit 2) naming the
     first failed frame and the likely causes.
     """

@@ -424,7 +424,7 @@ def test_an_output_folder_without_write_permission_is_a_one_line_error_before_th
     result = run("run", synthetic_sequence, "--out", locked)
     locked.chmod(0o755)
     assert result.exit_code == EXIT_USER_ERROR, result.output
-    assert result.output.startswith(f"error: {locked / 'trajectory.partial.tum.txt'}: cannot write (")
+    assert result.output.startswith(f"error: {locked / 'run.lock'}: cannot write (")
 
 
 def test_a_finished_run_leaves_no_partial_trajectory(synthetic_sequence, tmp_path):
@@ -737,3 +737,68 @@ def test_a_partial_trajectory_on_a_full_disk_keeps_its_whole_rows_and_closes_qui
     partial.close()  # the error above is the one the user gets
     assert (tmp_path / "trajectory.partial.tum.txt").read_text().endswith("\n")
     assert len(read_tum(tmp_path / "trajectory.partial.tum.txt")) == 2
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_naming_the_folder_and_the_pid(
+        synthetic_sequence, tmp_path, no_frame_may_run):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "run.lock").write_text(f"{os.getpid()}\n")  # a live process: this one
+    result = run("run", synthetic_sequence, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == (f"error: {out}: in use by another run (pid {os.getpid()}); wait for it to end, or "
+                             f"delete {out / 'run.lock'} if no run is writing there\n")
+    assert (out / "run.lock").read_text() == f"{os.getpid()}\n"
+
+
+def a_dead_pid() -> int:
+    """The process id of a process that has ended."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_a_run_holds_its_folder_while_it_goes_and_takes_over_the_lock_of_a_dead_run(
+        synthetic_sequence, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    out.mkdir()
+    dead = a_dead_pid()
+    (out / "run.lock").write_text(f"{dead}\n")
+    held = []
+    original = System.process_frame
+
+    def process_frame(self, index):
+        held.append((out / "run.lock").read_text())
+        return original(self, index)
+
+    monkeypatch.setattr(System, "process_frame", process_frame)
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 2)
+    assert result.exit_code == 0, result.output
+    assert result.stderr == f"warning: {out / 'run.lock'}: took over the lock of a run that has ended (pid {dead})\n"
+    assert held == [f"{os.getpid()}\n"] * 2 and not (out / "run.lock").exists()
+
+
+def test_a_run_stopped_by_ctrl_c_or_an_error_releases_its_folder(synthetic_sequence, tmp_path, monkeypatch):
+    def process_frame(self, index):
+        raise KeyboardInterrupt if index == 1 else OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(System, "process_frame", process_frame)
+    assert run("run", synthetic_sequence, "--out", tmp_path / "error").exit_code == 1
+    monkeypatch.setattr(System, "process_frame", lambda self, index: process_frame(self, 1))
+    assert run("run", synthetic_sequence, "--out", tmp_path / "ctrl_c").exit_code == EXIT_INTERRUPTED
+    assert sorted(tmp_path.glob("*/run.lock")) == [] and (tmp_path / "ctrl_c" / "summary.json").exists()
+
+
+def test_a_rerun_keeps_the_partial_trajectory_of_a_run_that_was_killed_and_says_so(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    killed_runs = ["# timestamp tx ty tz qx qy qz qw\n0.0 0 0 0 0 0 0 1\n", "# timestamp tx ty tz qx qy qz qw\n"]
+    for n, poses in enumerate(killed_runs, start=1):
+        (out / "trajectory.partial.tum.txt").write_text(poses)
+        result = run("run", synthetic_sequence, "--out", out, "--max-frames", 2)
+        assert result.exit_code == 0, result.output
+        kept = out / f"trajectory.partial.{n}.tum.txt"
+        assert result.stderr == (f"warning: kept the partial trajectory of an earlier run that did not finish "
+                                 f"as {kept}\n")
+    assert [(out / f"trajectory.partial.{n}.tum.txt").read_text() for n in (1, 2)] == killed_runs
+    assert not (out / "trajectory.partial.tum.txt").exists()

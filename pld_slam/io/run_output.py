@@ -6,14 +6,22 @@ Which files a run writes, its plots included, is `pld_slam.report.run_files`'s.
 An output folder holds one run's files only: `prepare_output_folder` deletes the files
 an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
 its first, so a run that writes fewer files (under 2 frames: no plot) or stops half way
-never sits beside the plot or loops of the run before.
+never sits beside the plot or loops of the run before. The one exception is the partial
+trajectory of a run that did not finish (killed, or its final files not written): the
+only record of that run, it is kept under a numbered name (`keep_partial_trajectory`).
+
+An output folder holds one run at a time: a run takes the folder's lock (`RUN_LOCK`,
+`lock_output_folder`) before it deletes or writes anything there, so a second run into
+the same folder is refused instead of deleting the first one's files as it writes them.
 
 Every OSError on output becomes an `OutputError` naming the path, so that an output
 folder that cannot be written reaches the user as one line, like bad input, and not as
 an internal error.
 """
 
+import itertools
 import json
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,6 +48,8 @@ FRAMES = "frames.csv"
 TIMING_PLOT = "timing.png"
 MAP_PLY = "map.ply"
 KEYFRAMES_TUM = "keyframes.tum.txt"
+RUN_LOCK = "run.lock"
+"""The output folder's lock while a run writes there: the process id of the run, a line."""
 RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS, TIMING_PLOT, MAP_PLY,
              KEYFRAMES_TUM)
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
@@ -53,18 +63,95 @@ def create_output_folder(folder: Path) -> None:
         raise OutputError.from_os_error(folder, error) from None
 
 
-def prepare_output_folder(folder: Path) -> None:
-    """Create ``folder`` if needed and delete the `RUN_FILES` an earlier run left in it.
+def prepare_output_folder(folder: Path) -> Path | None:
+    """Delete the `RUN_FILES` an earlier run left in ``folder``, keeping its partial trajectory; return the
+    name that was kept under (`keep_partial_trajectory`), None when there was none.
 
     Other files and subfolders (yours, or an ablation cell's ``cell.json``) are kept.
-    `OutputError` when the folder cannot be created or a file not deleted.
+    `OutputError` when a file cannot be renamed or deleted.
     """
-    create_output_folder(folder)
+    kept = keep_partial_trajectory(folder)
     for name in RUN_FILES:
         try:
             (folder / name).unlink(missing_ok=True)
         except OSError as error:
             raise OutputError.from_os_error(folder / name, error) from None
+    return kept
+
+
+def keep_partial_trajectory(folder: Path) -> Path | None:
+    """Rename the `TRAJECTORY_PARTIAL` of a run that did not finish to ``trajectory.partial.N.tum.txt``, the first
+    free N from 1, and return that path; None when there is no such file."""
+    partial = folder / TRAJECTORY_PARTIAL
+    if not partial.exists():
+        return None
+    stem = TRAJECTORY_PARTIAL.removesuffix(".tum.txt")
+    kept = next(folder / f"{stem}.{n}.tum.txt" for n in itertools.count(1)
+                if not (folder / f"{stem}.{n}.tum.txt").exists())
+    try:
+        partial.rename(kept)
+    except OSError as error:
+        raise OutputError.from_os_error(partial, error) from None
+    return kept
+
+
+def lock_output_folder(folder: Path) -> str | None:
+    """Create ``folder`` if needed and take its lock: `RUN_LOCK` created atomically (``O_CREAT | O_EXCL``) with
+    this process's id. Return the ended run whose lock was taken over as the lock names it (``pid 123``, or
+    ``no pid`` when a run was killed before writing it), None when there was no lock.
+
+    `OutputError` naming the folder and the process when a running process holds the lock (or when another
+    run took it over at the same moment), or when the lock cannot be written.
+    """
+    create_output_folder(folder)
+    lock = folder / RUN_LOCK
+    ended = None
+    for _ in range(2):  # the second attempt after an ended run's lock was removed
+        try:
+            descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            owner = lock_owner(lock)
+            if owner is not None and process_is_running(owner):
+                raise OutputError(f"{folder}: in use by another run (pid {owner}); wait for it to end, or delete "
+                                  f"{lock} if no run is writing there") from None
+            ended = "no pid" if owner is None else f"pid {owner}"
+            remove_lock(lock)
+            continue
+        except OSError as error:
+            raise OutputError.from_os_error(lock, error) from None
+        with os.fdopen(descriptor, "w") as file:
+            file.write(f"{os.getpid()}\n")
+        return ended
+    raise OutputError(f"{folder}: another run took its lock ({lock}) at the same moment")
+
+
+def lock_owner(lock: Path) -> int | None:
+    """The process id a `RUN_LOCK` file holds; None when it holds none (a run killed as it took the lock) or is
+    gone."""
+    try:
+        pid = int(lock.read_text())
+    except (OSError, ValueError):
+        return None
+    return pid if pid > 0 else None
+
+
+def process_is_running(pid: int) -> bool:
+    """Whether process ``pid`` exists (signal 0 tests that; a process of another user raises PermissionError)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
+def remove_lock(lock: Path) -> None:
+    """Delete a `RUN_LOCK` file; one that cannot be deleted is left, to be taken over as an ended run's."""
+    try:
+        lock.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 class PartialTrajectory:

@@ -12,7 +12,9 @@ table, loops, plots, map), each in its format from `pld_slam.io`.
 """
 
 import dataclasses
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +35,7 @@ from pld_slam.io.run_output import (
     LOOPS,
     MAP_PLY,
     PLOT,
+    RUN_LOCK,
     SUMMARY,
     TIMING_PLOT,
     TRAJECTORY_FILES,
@@ -40,14 +43,16 @@ from pld_slam.io.run_output import (
     PartialTrajectory,
     create_output_folder,
     frame_table,
+    lock_output_folder,
     prepare_output_folder,
+    remove_lock,
     write_frame_table,
     write_loop_candidates,
     write_summary,
 )
 from pld_slam.io.trajectory import write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
-from pld_slam.run_config import load_run_config
+from pld_slam.run_config import RunConfig, load_run_config
 from pld_slam.system import FrameObserver, FrameRecord, System
 from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam.trajectory import Trajectory
@@ -61,9 +66,15 @@ class RunInterrupted(KeyboardInterrupt):
     it wrote."""
 
 
+def say_on_stderr(line: str) -> None:
+    """`run_and_write`'s ``say`` unless told: ``line`` on stderr."""
+    print(line, file=sys.stderr)
+
+
 def run_and_write(
     sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
     save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
+    say: Callable[[str], None] = say_on_stderr,
 ) -> dict:
     """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
 
@@ -74,14 +85,18 @@ def run_and_write(
     A sequence with moving-object masks has its dynamic labels scored against them
     (`MaskScores`), the summary's precision and recall.
 
-    The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
-    so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
-    `PartialTrajectory`) after the input and config are checked and before the first
-    frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
-    after every frame is lost. Each frame's tracked pose is appended to that file as
-    the run goes, so a run killed hard keeps its poses so far; the file is deleted once
-    the final trajectory files are written. Ctrl-C during the frames raises
-    `RunInterrupted` once the files are written, naming them (`interrupted_message`).
+    Once the config is checked, the run takes ``out``'s lock (`locked_output_folder`): a
+    second run into the same folder stops there with an `OutputError`. The files an
+    earlier run left in ``out`` are then deleted (`prepare_output_folder`), so the folder
+    never mixes two runs, except the partial trajectory of a run that did not finish,
+    which is kept under a numbered name. The output folder is written to
+    (``trajectory.partial.tum.txt``, see `PartialTrajectory`) before the first frame, so
+    a bad ``out`` stops the run at once with an `OutputError` instead of after every
+    frame is lost. Each frame's tracked pose is appended to that file as the run goes,
+    so a run killed hard keeps its poses so far; the file is deleted once the final
+    trajectory files are written. Ctrl-C during the frames raises `RunInterrupted` once
+    the files are written, naming them (`interrupted_message`). ``say`` gets the
+    ``warning:`` lines of a lock taken over and of a partial trajectory kept.
 
     Returns
     -------
@@ -89,7 +104,29 @@ def run_and_write(
         The run's summary (`pld_slam.eval.run_summary.summarise_run`), as written to ``summary.json``.
     """
     run_config = load_run_config(sequence, config_paths, overrides)
-    sequence = sequence.scaled(run_config.config.dataset.scale)
+    with locked_output_folder(out, say):
+        return run_into_locked_folder(sequence.scaled(run_config.config.dataset.scale), run_config, out,
+                                      max_frames, save_dynamic, formats, say)
+
+
+@contextmanager
+def locked_output_folder(out: Path, say: Callable[[str], None]):
+    """Hold ``out``'s lock (`lock_output_folder`) for the block, saying when an ended run's lock was taken over;
+    the lock goes at the end of the block, however it ends."""
+    ended = lock_output_folder(out)
+    if ended is not None:
+        say(f"warning: {out / RUN_LOCK}: took over the lock of a run that has ended ({ended})")
+    try:
+        yield
+    finally:
+        remove_lock(out / RUN_LOCK)
+
+
+def run_into_locked_folder(
+    sequence: StereoSequence, run_config: RunConfig, out: Path, max_frames: int | None, save_dynamic: Path | None,
+    formats: tuple[str, ...], say: Callable[[str], None],
+) -> dict:
+    """`run_and_write` once ``out`` is locked and ``sequence`` scaled."""
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
@@ -97,11 +134,13 @@ def run_and_write(
     system = System(sequence, run_config.config, observers,
                     record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
     try:
-        prepare_output_folder(out)
+        kept = prepare_output_folder(out)
         partial.start()
     except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
         system.close()
         raise
+    if kept is not None:
+        say(f"warning: kept the partial trajectory of an earlier run that did not finish as {kept}")
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):
