@@ -802,3 +802,35 @@ def test_a_rerun_keeps_the_partial_trajectory_of_a_run_that_was_killed_and_says_
                                  f"as {kept}\n")
     assert [(out / f"trajectory.partial.{n}.tum.txt").read_text() for n in (1, 2)] == killed_runs
     assert not (out / "trajectory.partial.tum.txt").exists()
+
+
+@pytest.mark.parametrize("bad_image", ["broken symlink", "empty file", "JPEG of another size"])
+def test_an_unusable_frame_0_is_skipped_as_any_frame_is_and_the_world_is_the_first_usable_frame(
+        synthetic_sequence, tmp_path, bad_image):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    first = sequence / "image_0" / "000000.png"
+    first.unlink()
+    if bad_image == "broken symlink":
+        first.symlink_to(tmp_path / "gone.png")
+    elif bad_image == "empty file":
+        first.write_bytes(b"")
+    else:
+        first.write_bytes(cv2.imencode(".jpg", np.full((60, 80), 128, dtype=np.uint8))[1].tobytes())
+    out = tmp_path / "run"
+    result = run("run", sequence, "--out", out)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert [frame["index"] for frame in summary["skipped_frames"]] == [0]
+    assert str(first) in summary["skipped_frames"][0]["reason"] and summary["world_frame"] == 1
+    assert summary["frames"] == 6 and len(summary["tracking_failures"]) < 6
+
+
+def test_a_sequence_without_one_readable_left_image_is_a_one_line_error_naming_the_first(
+        synthetic_sequence, tmp_path):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    for image in (sequence / "image_0").iterdir():
+        image.write_bytes(b"")
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == (f"error: {sequence / 'image_0'}: no image whose size can be read, the first: "
+                             f"{sequence / 'image_0' / '000000.png'}: not a PNG image (cannot read the image size)\n")

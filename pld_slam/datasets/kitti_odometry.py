@@ -5,7 +5,7 @@
   partner of the same name raises, naming it.
 - Camera: ``P0`` and ``P1`` of ``calib.txt``; fx, fy, cx, cy from ``P0`` and
   ``baseline = (P0[0, 3] - P1[0, 3]) / fx``. ``calib.txt`` has no image size; we read
-  it from the header of the first left PNG (24 bytes), so opening decodes no image.
+  it from the header of the first readable left PNG (24 bytes), so opening decodes no image.
 - Times: ``times.txt``, one time [s] per line and per frame. It is required: every KITTI
   download has it, and a guessed frame rate would silently distort time-based metrics.
 - Frame rate: KITTI's nominal 10 Hz (`FRAME_RATE`); for what ``pld-slam synth`` wrote,
@@ -34,7 +34,7 @@ from pld_slam.datasets.calibration import (
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import natural_sorted, paired_image_folders, png_size, read_times
+from pld_slam.datasets.files import first_image_size, natural_sorted, paired_image_folders, png_size, read_times
 from pld_slam.errors import DatasetError
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.trajectory import Trajectory
@@ -60,7 +60,7 @@ def load(folder: Path) -> StereoSequence:
     camera = stereo_camera_from_projections(
         calibration.array("P0", (3, 4), PINHOLE_ENTRIES),
         calibration.array("P1", (3, 4), PINHOLE_ENTRIES),
-        *png_size(left_paths[0]),
+        *first_image_size(left_paths, png_size),
         source=calibration.path,
         keys=("P0", "P1"),
     )
