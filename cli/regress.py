@@ -6,6 +6,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.report.regress import (
     add_sequences,
     check_baseline,
@@ -42,6 +43,9 @@ def regress_command(ctx: click.Context, baseline_path: Path, sequence_dirs: tupl
     that a change of parameter worsens nothing).
     """
     baseline = read_baseline(baseline_path, missing_ok=update)
+    create_output_folder(out)
+    if update:
+        create_output_folder(baseline_path.parent)
     if update and sequence_dirs:
         baseline = add_sequences(baseline, sequence_dirs)
     checked = select_cells(baseline, sequence_dirs, out)

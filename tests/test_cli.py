@@ -834,3 +834,39 @@ def test_a_sequence_without_one_readable_left_image_is_a_one_line_error_naming_t
     assert result.exit_code == EXIT_USER_ERROR, result.output
     assert result.output == (f"error: {sequence / 'image_0'}: no image whose size can be read, the first: "
                              f"{sequence / 'image_0' / '000000.png'}: not a PNG image (cannot read the image size)\n")
+
+
+WORK_BEFORE_OUTPUT_CHECK = {
+    "eval --plot": "pld_slam_cli.evaluate.load_pair",
+    "eval --save-results": "pld_slam_cli.evaluate.load_pair",
+    "places": "pld_slam_cli.places.read_images",
+    "vocabulary build": "pld_slam_cli.vocabulary.training_descriptors",
+    "ablate": "pld_slam_cli.ablate.prepare_ablation",
+    "regress": "pld_slam_cli.regress.select_cells",
+}
+"""Where each command's work starts: it must not be reached when the output path cannot be written."""
+
+
+@pytest.mark.parametrize("command", WORK_BEFORE_OUTPUT_CHECK)
+def test_every_command_checks_its_output_path_before_any_work(synthetic_sequence, tmp_path, monkeypatch, command):
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"{command} started its work before checking its output path")
+
+    monkeypatch.setattr(WORK_BEFORE_OUTPUT_CHECK[command], refuse)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder\n")
+    blocked = a_file / "out"
+    baseline = tmp_path / "baseline.json"
+    baseline.write_text(json.dumps({"cells": [{"name": "a", "sequence": {"path": str(synthetic_sequence)}}]}))
+    poses = synthetic_sequence / "poses.txt"
+    args = {
+        "eval --plot": ("eval", poses, poses, "--plot", blocked),
+        "eval --save-results": ("eval", poses, poses, "--save-results", blocked / "ate.zip"),
+        "places": ("places", synthetic_sequence / "image_0", "--out", blocked),
+        "vocabulary build": ("vocabulary", "build", synthetic_sequence, "--out", blocked / "vocabulary.npz"),
+        "ablate": ("ablate", synthetic_sequence, "--out", blocked),
+        "regress": ("regress", baseline, "--out", blocked),
+    }[command]
+    result = run(*args)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output.startswith(f"error: {blocked}: cannot write (") and result.output.count("\n") == 1

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from pld_slam.errors import OutputError
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.io.trajectory import TUM_HEADER, tum_rows
 from pld_slam.system import STAGES, FrameRecord
 from pld_slam.trajectory import Trajectory
@@ -53,14 +54,6 @@ RUN_LOCK = "run.lock"
 RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS, TIMING_PLOT, MAP_PLY,
              KEYFRAMES_TUM)
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
-
-
-def create_output_folder(folder: Path) -> None:
-    """Create ``folder`` and its parents if needed; `OutputError` when that fails (e.g. under a file)."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError.from_os_error(folder, error) from None
 
 
 def prepare_output_folder(folder: Path) -> Path | None:

@@ -28,6 +28,7 @@ from pld_slam.eval.run_summary import summarise_run
 from pld_slam.eval.timing_plot import plot_frame_times
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.map_ply import MapCloud, map_cloud, write_map_ply
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.io.run_output import (
     DEFAULT_FORMATS,
     FRAMES,
@@ -41,7 +42,6 @@ from pld_slam.io.run_output import (
     TRAJECTORY_FILES,
     TRAJECTORY_PARTIAL,
     PartialTrajectory,
-    create_output_folder,
     frame_table,
     lock_output_folder,
     prepare_output_folder,
