@@ -277,6 +277,33 @@ def test_report_on_a_folder_that_is_no_ablation_says_so(tmp_path):
     assert result.exit_code == 2 and "not the output folder of pld-slam ablate" in result.output
 
 
+@pytest.mark.parametrize("content, problem", [
+    (b"{", "not valid JSON"),
+    (b"[1, 2]", "expected an object with the keys " + ", ".join(ROW_COLUMNS)),
+    (b'{"sequence": "s", "variant": "v"}', "expected an object with the keys "),
+    (b'{"sequence": "caf\xe9"}', "not UTF-8 text"),
+])
+def test_report_with_a_corrupt_cell_json_is_an_error_naming_it_before_writing_anything(tmp_path, content, problem):
+    (tmp_path / "ablation.json").write_text(json.dumps({"suite": "x", "description": "", "variants": ["v"],
+                                                        "sequences": ["s"], "sequence_dirs": ["/s"]}))
+    cell = tmp_path / "cells" / "s" / "v" / "cell.json"
+    cell.parent.mkdir(parents=True)
+    cell.write_bytes(content)
+    result = CliRunner().invoke(cli, ["ablate", "--report", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {cell}") and problem in result.output and result.output.count("\n") == 1
+    assert not (tmp_path / "results.csv").exists()
+
+
+@pytest.mark.parametrize("content", ['{"suite": "x"}', '{"variants": "v", "sequences": ["s"]}', "[]"])
+def test_report_with_a_malformed_ablation_json_is_an_error_naming_it(tmp_path, content):
+    (tmp_path / "ablation.json").write_text(content)
+    result = CliRunner().invoke(cli, ["ablate", "--report", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {tmp_path / 'ablation.json'}: expected ")
+    assert result.output.count("\n") == 1
+
+
 # --- Dask ---------------------------------------------------------------------------------
 
 def test_a_dask_cluster_gives_the_same_results_as_the_local_pool_cell_for_cell(tiny, tmp_path):
