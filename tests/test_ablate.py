@@ -71,6 +71,16 @@ def test_a_variant_with_a_bad_value_or_a_suite_without_variants_is_an_error(tmp_
         load_suite("no_such_suite")
 
 
+def test_variants_that_would_write_the_same_cell_folder_are_refused_naming_both(tiny, tmp_path):
+    suite = write_suite(tmp_path / "clash.yaml", "variants:\n  a/b: {}\n  c: {}\n  a_b: {lines.enabled: false}\n")
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli, ["ablate", str(tiny), "--suite", suite, "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.output == ("error: variants 'a/b' and 'a_b' of suite clash would write the same cell folder "
+                             "(cells/SEQUENCE/a_b); rename one\n")
+    assert not (out / "ablation.json").exists()
+
+
 def test_bow_without_a_vocabulary_is_refused_before_anything_runs(tiny):
     with pytest.raises(ConfigError, match="bow needs a vocabulary"):
         plan_cells([open_sequence(tiny)], load_suite("loop"))

@@ -81,6 +81,8 @@ def test_update_refuses_to_record_a_failed_run():
     ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "max_frames": "10"}]}',
      r"cell 1 \(a\): 'max_frames' must be a positive integer or null, got '10'"),
     ('{"cells": [{"name": "a", "sequence": {"path": 7}}]}', r"cell 1: the sequence's 'path' must be a string"),
+    ('{"cells": [{"name": "a/b", "sequence": {"path": "/x"}}, {"name": "a_b", "sequence": {"path": "/y"}}]}',
+     r"cell 2: names 'a/b' and 'a_b' would write the same cell folder \(a_b\); rename one"),
     ('{"cells": [{"name": "a", "sequence": {"synthetic": "stattic", "seed": 0, "frames": 5}}]}',
      "cell 1: unknown synthetic scenario 'stattic'"),
 ])

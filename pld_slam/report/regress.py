@@ -37,7 +37,7 @@ from pld_slam.datasets import open_sequence
 from pld_slam.errors import ConfigError, PldSlamError
 from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.runner import run_cells
-from pld_slam.report.store import read_cell, read_json
+from pld_slam.report.store import folder_name, read_cell, read_json, same_folder_names
 from pld_slam.report.suite import Suite, Variant, check_overrides
 from pld_slam.synth.scenarios import CAMERAS, SCENARIOS
 from pld_slam.synth.writer import ensure_sequence
@@ -106,6 +106,10 @@ def read_baseline(path: Path, missing_ok: bool = False) -> dict:
             raise ConfigError(f"{where}: name {cell['name']!r} is used twice")
         _sequence_kind(cell["sequence"], where)
         _check_cell_values(cell, f"{where} ({cell['name']})")
+    clash = same_folder_names(names)
+    if clash is not None:
+        raise ConfigError(f"{path}: cell {names.index(clash[1]) + 1}: names {clash[0]!r} and {clash[1]!r} would write "
+                          f"the same cell folder ({folder_name(clash[1])}); rename one")
     baseline.setdefault("tolerance", dict(DEFAULT_TOLERANCE))
     return baseline
 

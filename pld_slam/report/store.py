@@ -18,7 +18,7 @@ changed (the config, the sequence or the version did).
 
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,17 @@ def cell_dir(out: Path, spec: CellSpec) -> Path:
 def folder_name(name: str) -> str:
     """``name`` usable as one file or folder name."""
     return name.replace(os.sep, "_").replace("/", "_") or "_"
+
+
+def same_folder_names(names: Iterable[str]) -> tuple[str, str] | None:
+    """The first two of ``names`` that differ but have one `folder_name` (``a/b`` and ``a_b``): their cells
+    would write one folder. None when there are none."""
+    first_of = {}
+    for name in names:
+        first = first_of.setdefault(folder_name(name), name)
+        if first != name:
+            return first, name
+    return None
 
 
 def read_json(path: Path, error: type[PldSlamError] = PldSlamError) -> Any:
