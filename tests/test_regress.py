@@ -102,3 +102,18 @@ def test_a_baseline_that_is_not_utf8_is_an_error_naming_the_file(tmp_path):
         read_baseline(path)
     result = invoke(path)
     assert result.exit_code == 2 and result.output.startswith(f"error: {path}: not UTF-8 text")
+
+
+def test_a_check_where_every_cell_is_skipped_says_nothing_was_checked_and_fails_unless_allowed(
+        tmp_path, monkeypatch):
+    monkeypatch.delenv("PLD_SLAM_DATA", raising=False)
+    baseline = write_json(tmp_path / "ci.json", {"cells": [
+        {"name": "real", "sequence": {"data": "kitti_odometry/sequences/06"}, "ate_rmse_m": 0.2}]})
+    result = invoke(baseline, "--out", tmp_path / "work")
+    assert result.exit_code == 2, result.output
+    assert "skipped (PLD_SLAM_DATA is not set)" in result.stdout
+    assert result.stderr == (f"error: {baseline}: nothing checked: its 1 cell was skipped (the table says why); "
+                             "--allow-skipped accepts that\n")
+    allowed = invoke(baseline, "--out", tmp_path / "work", "--allow-skipped")
+    assert allowed.exit_code == 0, allowed.output
+    assert allowed.stdout.endswith("\nnothing checked (1 skipped)\n")
