@@ -33,12 +33,12 @@ from pld_slam.io.trajectory import (
     write_tum,
 )
 from pld_slam.synth.writer import write_sequence
-from pld_slam.system import System
+from pld_slam.system import STAGES, System
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import LABEL_WIDTH, nothing_tracked, skipped_frame_rows
+from pld_slam_cli.run import format_run_table, nothing_tracked, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -507,8 +507,8 @@ def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_
     assert child.returncode == 0, child.stderr
     assert child.stderr == ""  # no library noise (libpng, OpenCV WARN), no progress bar off a terminal
     table = child.stdout.splitlines()
-    blank = " " * LABEL_WIDTH
-    start = table.index(f"{'skipped frames':<{LABEL_WIDTH}}2")
+    start = next(row for row, line in enumerate(table) if re.fullmatch(r"skipped frames +2", line))
+    blank = " " * (len(table[start]) - 1)
     assert table[start + 1] == f"{blank}frame 2: {truncated}: cannot read image (not an image, or corrupt)"
     assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
                                 "but the calibration is for 160x120")
@@ -870,3 +870,16 @@ def test_every_command_checks_its_output_path_before_any_work(synthetic_sequence
     result = run(*args)
     assert result.exit_code == EXIT_USER_ERROR, result.output
     assert result.output.startswith(f"error: {blocked}: cannot write (") and result.output.count("\n") == 1
+
+
+def test_run_table_labels_of_any_length_keep_two_spaces_before_their_values(
+        synthetic_sequence, tmp_path, monkeypatch):
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--max-frames", 2, "--json")
+    summary = json.loads(result.output)
+    stage = "a_stage_whose_name_is_long"  # its row's label: 43 characters
+    monkeypatch.setattr("pld_slam_cli.run.STAGES", (*STAGES, stage))
+    summary["timing_ms"][stage] = {"median": 1.0, "mean": 2.0}
+    table = format_run_table(summary).splitlines()
+    assert f"{stage} ms/frame (median)  1.0 (mean 2.0)" in table
+    assert table[0] == "sequence" + " " * (len(stage) + len(" ms/frame (median)") + 2 - len("sequence")) + \
+        summary["sequence"]
