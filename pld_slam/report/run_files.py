@@ -13,7 +13,7 @@ table, loops, plots, map), each in its format from `pld_slam.io`.
 
 import dataclasses
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -66,15 +66,9 @@ class RunInterrupted(KeyboardInterrupt):
     it wrote."""
 
 
-def say_on_stderr(line: str) -> None:
-    """`run_and_write`'s ``say`` unless told: ``line`` on stderr."""
-    print(line, file=sys.stderr)
-
-
 def run_and_write(
     sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
     save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
-    say: Callable[[str], None] = say_on_stderr,
 ) -> dict:
     """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
 
@@ -95,8 +89,8 @@ def run_and_write(
     frame is lost. Each frame's tracked pose is appended to that file as the run goes,
     so a run killed hard keeps its poses so far; the file is deleted once the final
     trajectory files are written. Ctrl-C during the frames raises `RunInterrupted` once
-    the files are written, naming them (`interrupted_message`). ``say`` gets the
-    ``warning:`` lines of a lock taken over and of a partial trajectory kept.
+    the files are written, naming them (`interrupted_message`). A lock taken over and a
+    partial trajectory kept are each a ``warning:`` line on stderr (`warn`).
 
     Returns
     -------
@@ -104,18 +98,23 @@ def run_and_write(
         The run's summary (`pld_slam.eval.run_summary.summarise_run`), as written to ``summary.json``.
     """
     run_config = load_run_config(sequence, config_paths, overrides)
-    with locked_output_folder(out, say):
+    with locked_output_folder(out):
         return run_into_locked_folder(sequence.scaled(run_config.config.dataset.scale), run_config, out,
-                                      max_frames, save_dynamic, formats, say)
+                                      max_frames, save_dynamic, formats)
+
+
+def warn(message: str) -> None:
+    """Print ``warning: message`` on stderr: something about the output folder the user should know."""
+    print(f"warning: {message}", file=sys.stderr)
 
 
 @contextmanager
-def locked_output_folder(out: Path, say: Callable[[str], None]):
+def locked_output_folder(out: Path):
     """Hold ``out``'s lock (`lock_output_folder`) for the block, saying when an ended run's lock was taken over;
     the lock goes at the end of the block, however it ends."""
     ended = lock_output_folder(out)
     if ended is not None:
-        say(f"warning: {out / RUN_LOCK}: took over the lock of a run that has ended ({ended})")
+        warn(f"{out / RUN_LOCK}: took over the lock of a run that has ended ({ended})")
     try:
         yield
     finally:
@@ -124,7 +123,7 @@ def locked_output_folder(out: Path, say: Callable[[str], None]):
 
 def run_into_locked_folder(
     sequence: StereoSequence, run_config: RunConfig, out: Path, max_frames: int | None, save_dynamic: Path | None,
-    formats: tuple[str, ...], say: Callable[[str], None],
+    formats: tuple[str, ...],
 ) -> dict:
     """`run_and_write` once ``out`` is locked and ``sequence`` scaled."""
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
@@ -140,7 +139,7 @@ def run_into_locked_folder(
         system.close()
         raise
     if kept is not None:
-        say(f"warning: kept the partial trajectory of an earlier run that did not finish as {kept}")
+        warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):
