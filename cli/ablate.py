@@ -8,6 +8,7 @@ import click
 from tqdm import tqdm
 
 from pld_slam.errors import PldSlamError
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.report.ablation import prepare_ablation, write_report
 from pld_slam.report.cells import memory_limit_enforced
 from pld_slam.report.runner import pending_cells, run_cells
@@ -81,6 +82,7 @@ def ablate_command(sequence_dirs: tuple[Path, ...], suite_name: str, out: Path |
     if report_dir is not None:
         if sequence_dirs:
             raise PldSlamError("--report rebuilds an existing ablation: give no SEQUENCE_DIR with it")
+        create_output_folder(report_dir)
         click.echo(to_markdown(write_report(report_dir)) + f"wrote {report_dir}/")
         return
     if not sequence_dirs:
@@ -89,6 +91,7 @@ def ablate_command(sequence_dirs: tuple[Path, ...], suite_name: str, out: Path |
         click.echo("warning: --max-memory-mb is not enforced on this system (it needs Linux's /proc)", err=True)
     suite = load_suite(suite_name)
     out = out if out is not None else Path("runs") / f"ablate-{suite.name}"
+    create_output_folder(out)
     start = time.perf_counter()
     cells = prepare_ablation(out, sequence_dirs, suite, overrides, max_frames)
     to_run = len(pending_cells(out, cells))

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from pld_slam.datasets import open_sequence
-from pld_slam.io.run_output import create_output_folder
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.report.run_files import run_and_write
 from pld_slam.synth import CAMERAS, SCENARIOS, write_sequence
 from pld_slam_cli.config import set_option

@@ -11,7 +11,7 @@ from pld_slam.eval import EvalResult, evaluate, plot_error_over_time, plot_traje
 from pld_slam.eval.metrics import ate_result
 from pld_slam.eval.plots import comparison_error_figure, comparison_top_view_figure, save_figure
 from pld_slam.io.evo_results import write_evo_result
-from pld_slam.io.run_output import create_output_folder
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.io.trajectory import FORMATS, detect_format, is_euroc_body_groundtruth, read_trajectory
 from pld_slam.trajectory import Trajectory
 
@@ -175,6 +175,10 @@ def eval_command(gt: Path, est: tuple[Path, ...], fmt: str, align: str, max_diff
     EST, a column each, named by file (or folder and file where names repeat).
     """
     paths = estimate_names(est)
+    if plot_dir is not None:
+        create_output_folder(plot_dir)
+    if results_path is not None:
+        create_output_folder(results_path if len(paths) > 1 else results_path.parent)
     loaded = {name: load_pair(gt, path, fmt) for name, path in paths.items()}
     results = {name: evaluated(paths[name], *pair, align, max_diff) for name, pair in loaded.items()}
     if plot_dir is not None:
@@ -201,9 +205,8 @@ def evaluated(path: Path, groundtruth: Trajectory, estimate: Trajectory, by_inde
 
 def write_plots(plot_dir: Path, loaded: dict[str, tuple[Trajectory, Trajectory, bool]], align: str,
                 max_diff: float) -> None:
-    """trajectory_top_view.png and ate_over_time.png of every estimate in ``plot_dir`` (created):
-    one estimate as `plot_trajectory_top_view` draws it, several on one plot each."""
-    create_output_folder(plot_dir)
+    """trajectory_top_view.png and ate_over_time.png of every estimate in ``plot_dir`` (created by the command
+    before its work): one estimate as `plot_trajectory_top_view` draws it, several on one plot each."""
     (name, (groundtruth, estimate, by_index)), *_ = loaded.items()
     if len(loaded) == 1:
         plot_trajectory_top_view(plot_dir / "trajectory_top_view.png", groundtruth, estimate,
@@ -221,9 +224,8 @@ def write_plots(plot_dir: Path, loaded: dict[str, tuple[Trajectory, Trajectory, 
 def write_results(path: Path, loaded: dict[str, tuple[Trajectory, Trajectory, bool]], align: str,
                   max_diff: float) -> None:
     """evo's result zip of each estimate's ATE: ``path`` itself for one estimate, ``path/NAME.zip``
-    for several (a name that is a whole path: its ``/`` as ``_``)."""
-    if len(loaded) > 1:
-        create_output_folder(path)
+    for several (a name that is a whole path: its ``/`` as ``_``); the folder created by the command before its
+    work."""
     for name, (groundtruth, estimate, by_index) in loaded.items():
         target = path if len(loaded) == 1 else path / f"{name.replace('/', '_')}.zip"
         write_evo_result(target, ate_result(groundtruth, estimate, name, align, by_index, max_diff))

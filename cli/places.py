@@ -8,14 +8,16 @@ import numpy as np
 from tqdm import tqdm
 
 from pld_slam.config import Config
+from pld_slam.errors import PldSlamError
 from pld_slam.eval.place_plots import plot_precision_recall, plot_similarity_matrix
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.loop.places import (
     DETECTORS,
     PlaceScores,
     evaluate_places,
     load_ground_truth,
     natural_sorted_images,
-    place_similarity,
+    place_scorer,
     read_images,
 )
 
@@ -35,6 +37,15 @@ def format_places_table(n_images: int, scores: PlaceScores | None) -> str:
             ("average precision", number(scores.average_precision)),
         ]
     return "\n".join(f"{label:<28}{value}" for label, value in rows)
+
+
+def check_some_image_is_compared(image_dir: Path, n_images: int, exclude_recent: int) -> None:
+    """`PldSlamError` when no image of ``image_dir`` has an earlier one outside the ``exclude_recent`` images
+    before it: nothing would be scored."""
+    if n_images <= exclude_recent + 1:
+        left_out = f", the {exclude_recent} before each left out by --exclude-recent" if exclude_recent else ""
+        raise PldSlamError(f"{image_dir}: no image has an earlier one to be compared with ({n_images} images"
+                           f"{left_out})")
 
 
 def _with_progress(paths: list[Path], description: str):
@@ -67,13 +78,14 @@ def places_command(image_dir: Path, detector: str, vocabulary: Path | None, excl
     precision, average precision, and precision_recall.png.
     """
     paths = natural_sorted_images(image_dir)
+    check_some_image_is_compared(image_dir, len(paths), exclude_recent)
     ground_truth = None if gt_path is None else load_ground_truth(gt_path, len(paths))
+    score = place_scorer(detector, vocabulary, exclude_recent, Config())
     out_dir = Path("places") / image_dir.resolve().name if out_dir is None else out_dir
-    images = read_images(_with_progress(paths, f"{detector} {image_dir.name}"))
-    similarity = place_similarity(images, detector, vocabulary, exclude_recent, Config())
+    create_output_folder(out_dir)
+    similarity = score(read_images(_with_progress(paths, f"{detector} {image_dir.name}")))
     scores = None if ground_truth is None else evaluate_places(similarity, ground_truth, exclude_recent)
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     np.save(out_dir / "similarity.npy", similarity)
     plot_similarity_matrix(out_dir / "similarity.png", similarity, title=f"{detector.upper()} similarity")
     if scores is not None:

@@ -6,6 +6,8 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
+from pld_slam.errors import PldSlamError
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.report.regress import (
     add_sequences,
     check_baseline,
@@ -30,18 +32,24 @@ EXIT_REGRESSED = 1
               show_default=True, help="Where the cells run (always afresh) and synthetic sequences are generated.")
 @click.option("--workers", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default="cores",
               help="Cells run at once.")
+@click.option("--allow-skipped", is_flag=True,
+              help="Exit 0 when every cell is skipped (nothing checked) instead of with an error.")
 @click.pass_context
 def regress_command(ctx: click.Context, baseline_path: Path, sequence_dirs: tuple[Path, ...], update: bool,
-                    overrides: tuple[str, ...], out: Path, workers: int) -> None:
+                    overrides: tuple[str, ...], out: Path, workers: int, allow_skipped: bool) -> None:
     """Run the cells BASELINE.json lists and compare each ATE with the recorded one.
 
     Exits 1 with a table of what got worse when a cell's ATE exceeds its baseline by more
     than the tolerance (default 10 % + 1 mm) or its run fails. Real sequences are found
     under $PLD_SLAM_DATA (cells without it are skipped, saying so). With SEQUENCE_DIRs,
     only the cells on those sequences run. --set applies to every cell (e.g. to check
-    that a change of parameter worsens nothing).
+    that a change of parameter worsens nothing). A check where every cell is skipped (or
+    none is selected) checked nothing: an error (exit 2) unless --allow-skipped.
     """
     baseline = read_baseline(baseline_path, missing_ok=update)
+    create_output_folder(out)
+    if update:
+        create_output_folder(baseline_path.parent)
     if update and sequence_dirs:
         baseline = add_sequences(baseline, sequence_dirs)
     checked = select_cells(baseline, sequence_dirs, out)
@@ -56,5 +64,19 @@ def regress_command(ctx: click.Context, baseline_path: Path, sequence_dirs: tupl
     if regressed:
         click.echo(f"regression: {len(regressed)} of {len(verdicts)} cells got worse or failed", err=True)
         ctx.exit(EXIT_REGRESSED)
-    click.echo(f"no regression ({sum(v.status == 'pass' for v in verdicts)} passed, "
-               f"{sum(v.status == 'skipped' for v in verdicts)} skipped)")
+    skipped = sum(v.status == "skipped" for v in verdicts)
+    if skipped == len(verdicts):
+        if not allow_skipped:
+            raise PldSlamError(f"{baseline_path}: nothing checked: {nothing_checked(len(verdicts))}; "
+                               "--allow-skipped accepts that")
+        click.echo(f"nothing checked ({skipped} skipped)")
+        return
+    click.echo(f"no regression ({sum(v.status == 'pass' for v in verdicts)} passed, {skipped} skipped)")
+
+
+def nothing_checked(n_cells: int) -> str:
+    """Why a check of ``n_cells`` cells, all skipped, checked nothing."""
+    if n_cells == 0:
+        return "no cell selected"
+    skipped = "its 1 cell was skipped" if n_cells == 1 else f"all its {n_cells} cells were skipped"
+    return f"{skipped} (the table says why)"

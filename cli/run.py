@@ -16,8 +16,6 @@ from pld_slam_cli.evaluate import SCALE_LABEL, coverage_note, scale_text
 
 KERNELS_FROM_CACHE_SECONDS = 1.0
 """Loading the numba kernels from the disk cache takes well under this [s]; longer, they were compiled."""
-LABEL_WIDTH = 31
-"""Characters of the run table's label column: the longest label, ``see_through ms/frame (median)``, and two."""
 SKIPPED_FRAMES_SHOWN = 3
 """How many skipped frames the run table names; summary.json lists them all."""
 
@@ -45,7 +43,8 @@ def format_run_table(summary: dict) -> str:
     Rows without a label continue the row above: the skipped frames named
     (`skipped_frame_rows`), and the frames the accuracy covers when not all
     (`pld_slam_cli.evaluate.coverage_note`). The scale row is `eval`'s
-    (`pld_slam_cli.evaluate.scale_text`).
+    (`pld_slam_cli.evaluate.scale_text`). The values start two spaces after the longest
+    label, whatever the stages' names.
     """
 
     def number(value, fmt: str, unit: str) -> str:
@@ -96,7 +95,8 @@ def format_run_table(summary: dict) -> str:
         if timing:
             per = "keyframe" if stage in ("mapping", "loop") else "frame"
             rows.append((f"{stage} ms/{per} (median)", f"{timing['median']:.1f} (mean {timing['mean']:.1f})"))
-    return "\n".join(f"{label:<{LABEL_WIDTH}}{value}" for label, value in rows)
+    width = max(len(label) for label, _ in rows) + 2
+    return "\n".join(f"{label:<{width}}{value}" for label, value in rows)
 
 
 def kernel_compile_rows(seconds: float) -> list[tuple[str, str]]:
@@ -179,7 +179,9 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     Ctrl-C, SIGTERM or an error mid-run still writes the trajectory so far; while the run
     goes, trajectory.partial.tum.txt holds each frame's pose as tracked (kept if the run
     is killed, deleted once the final files are written). The files of an earlier run in
-    the output folder are deleted first; other files there are kept. A run that tracks
+    the output folder are deleted first, but for its partial trajectory, kept as
+    trajectory.partial.N.tum.txt; other files there are kept. The folder is locked while
+    the run goes (run.lock): a second run into it is refused. A run that tracks
     none of its frames writes its files, then ends with an error (exit 2) naming the
     first failed frame and the likely causes.
     """

@@ -7,6 +7,7 @@ import click
 from tqdm import tqdm
 
 from pld_slam.config import load_config
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.loop.vocabulary import build_vocabulary
 from pld_slam.loop.vocabulary_training import count_training_images, training_descriptors
 from pld_slam_cli.config import config_files_option, set_option
@@ -44,12 +45,12 @@ def build_command(
     """
     start = time.perf_counter()
     points = load_config(config_paths, overrides).points
+    create_output_folder(out.parent)
     n_images = count_training_images(image_dirs, every)
     with tqdm(total=n_images, desc="features", unit="image", leave=False) as bar:
         descriptors = training_descriptors(image_dirs, points, every, bar.update)
     with tqdm(total=depth, desc="clustering", unit="level", leave=False) as bar:
         vocabulary = build_vocabulary(descriptors, branching, depth, seed, progress=bar.update)
-    out.parent.mkdir(parents=True, exist_ok=True)
     vocabulary.save(out)
     click.echo(
         f"wrote {out}: {vocabulary.n_words} words (k={branching}, L={depth}) from "

@@ -2,8 +2,9 @@
 
 A configuration is built from the defaults, then YAML files (``configs/*.yaml``) laid
 over them in order, then ``section.key=value`` overrides. Each layer is validated as it
-is applied: an unknown section or key, a value of the wrong type, or a value outside its
-range is a `ConfigError` that names the file (or override) and the key.
+is applied: an unknown section or key, a value of the wrong type, a number that is not
+finite (``.nan``, ``.inf``), or a value outside its range is a `ConfigError` that names
+the file (or override) and the key.
 
 YAML layout: one mapping per section, e.g.::
 
@@ -14,6 +15,7 @@ YAML layout: one mapping per section, e.g.::
 """
 
 import dataclasses
+import math
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -24,9 +26,14 @@ import yaml
 
 from pld_slam.errors import ConfigError
 
+INT_MAX = 2**31 - 1
+"""The largest value of an integer field without an upper bound of its own: OpenCV, numba kernels and index
+arrays take them as 32-bit integers, which a larger value overflows."""
+
 
 def _param(default: Any, doc: str, low: float | None = None, high: float | None = None) -> Any:
-    """A config field with its documentation and an optional closed range [low, high]."""
+    """A config field with its documentation and an optional closed range [low, high] (an integer's ``high`` is
+    `INT_MAX` unless given; a number must be finite whatever its range)."""
     return field(default=default, metadata={"doc": doc, "low": low, "high": high})
 
 
@@ -96,7 +103,7 @@ class CalibrationConfig:
 class PointsConfig:
     """ORB point features: detection, bucketing over the image, stereo matching."""
 
-    n_features: int = _param(1500, "ORB keypoints per image before stereo matching", 1)
+    n_features: int = _param(1500, "ORB keypoints per image before stereo matching", 1, 100_000)
     scale_factor: float = _param(1.2, "ORB pyramid scale between levels (ORB-SLAM2: 1.2)", 1.01, 2.0)
     n_levels: int = _param(8, "ORB pyramid levels (ORB-SLAM2: 8)", 1, 16)
     fast_threshold: int = _param(20, "FAST corner threshold [grey levels] (ORB-SLAM2: 20)", 1, 255)
@@ -456,14 +463,18 @@ def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, valu
         if not isinstance(value, bool):
             raise ConfigError(f"{where}: {name} must be true or false, got {got}")
         return value
+    high = spec.metadata["high"]
     if kind is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: {name} must be an integer, got {got}")
+        high = INT_MAX if high is None else high
     elif kind is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: {name} must be a number, got {got}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: {name} must be a finite number, got {got}")
         value = float(value)
-    low, high = spec.metadata["low"], spec.metadata["high"]
+    low = spec.metadata["low"]
     if (low is not None and value < low) or (high is not None and value > high):
         bounds = f"[{low if low is not None else '-inf'}, {high if high is not None else 'inf'}]"
         raise ConfigError(f"{where}: {name} = {value!r} is outside {bounds}")

@@ -71,6 +71,16 @@ def test_a_variant_with_a_bad_value_or_a_suite_without_variants_is_an_error(tmp_
         load_suite("no_such_suite")
 
 
+def test_variants_that_would_write_the_same_cell_folder_are_refused_naming_both(tiny, tmp_path):
+    suite = write_suite(tmp_path / "clash.yaml", "variants:\n  a/b: {}\n  c: {}\n  a_b: {lines.enabled: false}\n")
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli, ["ablate", str(tiny), "--suite", suite, "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert result.output == ("error: variants 'a/b' and 'a_b' of suite clash would write the same cell folder "
+                             "(cells/SEQUENCE/a_b); rename one\n")
+    assert not (out / "ablation.json").exists()
+
+
 def test_bow_without_a_vocabulary_is_refused_before_anything_runs(tiny):
     with pytest.raises(ConfigError, match="bow needs a vocabulary"):
         plan_cells([open_sequence(tiny)], load_suite("loop"))
@@ -275,6 +285,33 @@ def test_report_rebuilds_tables_and_plots_from_the_recorded_cells(tiny, tmp_path
 def test_report_on_a_folder_that_is_no_ablation_says_so(tmp_path):
     result = CliRunner().invoke(cli, ["ablate", "--report", str(tmp_path)])
     assert result.exit_code == 2 and "not the output folder of pld-slam ablate" in result.output
+
+
+@pytest.mark.parametrize("content, problem", [
+    (b"{", "not valid JSON"),
+    (b"[1, 2]", "expected an object with the keys " + ", ".join(ROW_COLUMNS)),
+    (b'{"sequence": "s", "variant": "v"}', "expected an object with the keys "),
+    (b'{"sequence": "caf\xe9"}', "not UTF-8 text"),
+])
+def test_report_with_a_corrupt_cell_json_is_an_error_naming_it_before_writing_anything(tmp_path, content, problem):
+    (tmp_path / "ablation.json").write_text(json.dumps({"suite": "x", "description": "", "variants": ["v"],
+                                                        "sequences": ["s"], "sequence_dirs": ["/s"]}))
+    cell = tmp_path / "cells" / "s" / "v" / "cell.json"
+    cell.parent.mkdir(parents=True)
+    cell.write_bytes(content)
+    result = CliRunner().invoke(cli, ["ablate", "--report", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {cell}") and problem in result.output and result.output.count("\n") == 1
+    assert not (tmp_path / "results.csv").exists()
+
+
+@pytest.mark.parametrize("content", ['{"suite": "x"}', '{"variants": "v", "sequences": ["s"]}', "[]"])
+def test_report_with_a_malformed_ablation_json_is_an_error_naming_it(tmp_path, content):
+    (tmp_path / "ablation.json").write_text(content)
+    result = CliRunner().invoke(cli, ["ablate", "--report", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {tmp_path / 'ablation.json'}: expected ")
+    assert result.output.count("\n") == 1
 
 
 # --- Dask ---------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """The ``pld-slam`` commands: output, JSON keys, exit codes and one-line errors."""
 
+import errno
 import json
 import os
 import re
@@ -19,15 +20,25 @@ from conftest import REPO_ROOT, require
 from evo.tools import file_interface
 
 from pld_slam.datasets import open_sequence
+from pld_slam.errors import OutputError
 from pld_slam.geometry.se3 import make_pose
-from pld_slam.io.trajectory import read_kitti, read_trajectory, read_tum, write_euroc, write_kitti, write_tum
+from pld_slam.io.run_output import PartialTrajectory
+from pld_slam.io.trajectory import (
+    TUM_HEADER,
+    read_kitti,
+    read_trajectory,
+    read_tum,
+    write_euroc,
+    write_kitti,
+    write_tum,
+)
 from pld_slam.synth.writer import write_sequence
-from pld_slam.system import System
+from pld_slam.system import STAGES, System
 from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import LABEL_WIDTH, nothing_tracked, skipped_frame_rows
+from pld_slam_cli.run import format_run_table, nothing_tracked, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -447,7 +458,7 @@ def test_an_output_folder_without_write_permission_is_a_one_line_error_before_th
     result = run("run", synthetic_sequence, "--out", locked)
     locked.chmod(0o755)
     assert result.exit_code == EXIT_USER_ERROR, result.output
-    assert result.output.startswith(f"error: {locked / 'trajectory.partial.tum.txt'}: cannot write (")
+    assert result.output.startswith(f"error: {locked / 'run.lock'}: cannot write (")
 
 
 def test_a_finished_run_leaves_no_partial_trajectory(synthetic_sequence, tmp_path):
@@ -530,8 +541,8 @@ def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_
     assert child.returncode == 0, child.stderr
     assert child.stderr == ""  # no library noise (libpng, OpenCV WARN), no progress bar off a terminal
     table = child.stdout.splitlines()
-    blank = " " * LABEL_WIDTH
-    start = table.index(f"{'skipped frames':<{LABEL_WIDTH}}2")
+    start = next(row for row, line in enumerate(table) if re.fullmatch(r"skipped frames +2", line))
+    blank = " " * (len(table[start]) - 1)
     assert table[start + 1] == f"{blank}frame 2: {truncated}: cannot read image (not an image, or corrupt)"
     assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
                                 "but the calibration is for 160x120")
@@ -692,3 +703,217 @@ def test_synth_into_a_folder_under_a_file_is_a_one_line_error(tmp_path):
     result = CliRunner().invoke(cli, ["synth", str(blocker / "seq"), "--frames", "2"])
     assert result.exit_code == 2
     assert result.output.strip().splitlines()[-1].startswith(f"error: {blocker}")
+
+
+class FillingDisk:
+    """A file on a disk that fills after ``room`` bytes: the write that crosses it keeps what fits and raises
+    ENOSPC, as ``write(2)`` on a full disk does; from then on flushing or closing raises ENOSPC too (what a
+    buffered file does with the bytes it could not write), once the file is closed."""
+
+    def __init__(self, file, room: int) -> None:
+        self.file, self.room = file, room
+
+    def write(self, data):
+        kept = data[: max(self.room, 0)]
+        self.file.write(kept)
+        self.room -= len(data)
+        if self.room < 0:
+            raise self.full()
+        return len(data)
+
+    def flush(self):
+        self.file.flush()
+        if self.room < 0:
+            raise self.full()
+
+    def close(self):
+        self.file.close()
+        if self.room < 0:
+            raise self.full()
+
+    @staticmethod
+    def full() -> OSError:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name):
+        return getattr(self.file, name)
+
+
+@pytest.fixture
+def partial_disk_fills(monkeypatch):
+    """The partial trajectory's disk fills half way through its third pose row."""
+    original = Path.open
+
+    def open_on_a_filling_disk(path, mode="r", *args, **kwargs):
+        file = original(path, mode, *args, **kwargs)
+        if path.name != "trajectory.partial.tum.txt" or "r" in mode:
+            return file
+        return FillingDisk(file, room=len(TUM_HEADER) + 1 + 2 * 96 + 50)  # the first rows: 95 characters, \n
+
+    monkeypatch.setattr(Path, "open", open_on_a_filling_disk)
+
+
+def test_a_disk_that_fills_mid_run_is_a_one_line_error_naming_the_partial_trajectory(
+        synthetic_sequence, tmp_path, partial_disk_fills):
+    out = tmp_path / "run"
+    result = run("run", synthetic_sequence, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == f"error: {out / 'trajectory.partial.tum.txt'}: cannot write (No space left on device)\n"
+
+
+def test_a_partial_trajectory_on_a_full_disk_keeps_its_whole_rows_and_closes_quietly(tmp_path, partial_disk_fills):
+    partial = PartialTrajectory(tmp_path / "trajectory.partial.tum.txt")
+    partial.start()
+    partial.append(0.0, np.eye(4))
+    partial.append(0.1, make_pose(np.eye(3), [1.0, 2.0, 3.0]))
+    with pytest.raises(OutputError, match="No space left on device"):
+        partial.append(0.2, make_pose(np.eye(3), [123.456, 2.0, 3.0]))
+    partial.close()  # the error above is the one the user gets
+    assert (tmp_path / "trajectory.partial.tum.txt").read_text().endswith("\n")
+    assert len(read_tum(tmp_path / "trajectory.partial.tum.txt")) == 2
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_naming_the_folder_and_the_pid(
+        synthetic_sequence, tmp_path, no_frame_may_run):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "run.lock").write_text(f"{os.getpid()}\n")  # a live process: this one
+    result = run("run", synthetic_sequence, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == (f"error: {out}: in use by another run (pid {os.getpid()}); wait for it to end, or "
+                             f"delete {out / 'run.lock'} if no run is writing there\n")
+    assert (out / "run.lock").read_text() == f"{os.getpid()}\n"
+
+
+def a_dead_pid() -> int:
+    """The process id of a process that has ended."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_a_run_holds_its_folder_while_it_goes_and_takes_over_the_lock_of_a_dead_run(
+        synthetic_sequence, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    out.mkdir()
+    dead = a_dead_pid()
+    (out / "run.lock").write_text(f"{dead}\n")
+    held = []
+    original = System.process_frame
+
+    def process_frame(self, index):
+        held.append((out / "run.lock").read_text())
+        return original(self, index)
+
+    monkeypatch.setattr(System, "process_frame", process_frame)
+    result = run("run", synthetic_sequence, "--out", out, "--max-frames", 2)
+    assert result.exit_code == 0, result.output
+    assert result.stderr == f"warning: {out / 'run.lock'}: took over the lock of a run that has ended (pid {dead})\n"
+    assert held == [f"{os.getpid()}\n"] * 2 and not (out / "run.lock").exists()
+
+
+def test_a_run_stopped_by_ctrl_c_or_an_error_releases_its_folder(synthetic_sequence, tmp_path, monkeypatch):
+    def process_frame(self, index):
+        raise KeyboardInterrupt if index == 1 else OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(System, "process_frame", process_frame)
+    assert run("run", synthetic_sequence, "--out", tmp_path / "error").exit_code == 1
+    monkeypatch.setattr(System, "process_frame", lambda self, index: process_frame(self, 1))
+    assert run("run", synthetic_sequence, "--out", tmp_path / "ctrl_c").exit_code == EXIT_INTERRUPTED
+    assert sorted(tmp_path.glob("*/run.lock")) == [] and (tmp_path / "ctrl_c" / "summary.json").exists()
+
+
+def test_a_rerun_keeps_the_partial_trajectory_of_a_run_that_was_killed_and_says_so(synthetic_sequence, tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    killed_runs = ["# timestamp tx ty tz qx qy qz qw\n0.0 0 0 0 0 0 0 1\n", "# timestamp tx ty tz qx qy qz qw\n"]
+    for n, poses in enumerate(killed_runs, start=1):
+        (out / "trajectory.partial.tum.txt").write_text(poses)
+        result = run("run", synthetic_sequence, "--out", out, "--max-frames", 2)
+        assert result.exit_code == 0, result.output
+        kept = out / f"trajectory.partial.{n}.tum.txt"
+        assert result.stderr == (f"warning: kept the partial trajectory of an earlier run that did not finish "
+                                 f"as {kept}\n")
+    assert [(out / f"trajectory.partial.{n}.tum.txt").read_text() for n in (1, 2)] == killed_runs
+    assert not (out / "trajectory.partial.tum.txt").exists()
+
+
+@pytest.mark.parametrize("bad_image", ["broken symlink", "empty file", "JPEG of another size"])
+def test_an_unusable_frame_0_is_skipped_as_any_frame_is_and_the_world_is_the_first_usable_frame(
+        synthetic_sequence, tmp_path, bad_image):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    first = sequence / "image_0" / "000000.png"
+    first.unlink()
+    if bad_image == "broken symlink":
+        first.symlink_to(tmp_path / "gone.png")
+    elif bad_image == "empty file":
+        first.write_bytes(b"")
+    else:
+        first.write_bytes(cv2.imencode(".jpg", np.full((60, 80), 128, dtype=np.uint8))[1].tobytes())
+    out = tmp_path / "run"
+    result = run("run", sequence, "--out", out)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert [frame["index"] for frame in summary["skipped_frames"]] == [0]
+    assert str(first) in summary["skipped_frames"][0]["reason"] and summary["world_frame"] == 1
+    assert summary["frames"] == 6 and len(summary["tracking_failures"]) < 6
+
+
+def test_a_sequence_without_one_readable_left_image_is_a_one_line_error_naming_the_first(
+        synthetic_sequence, tmp_path):
+    sequence = shutil.copytree(synthetic_sequence, tmp_path / "seq")
+    for image in (sequence / "image_0").iterdir():
+        image.write_bytes(b"")
+    result = run("run", sequence, "--out", tmp_path / "run")
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == (f"error: {sequence / 'image_0'}: no image whose size can be read, the first: "
+                             f"{sequence / 'image_0' / '000000.png'}: not a PNG image (cannot read the image size)\n")
+
+
+WORK_BEFORE_OUTPUT_CHECK = {
+    "eval --plot": "pld_slam_cli.evaluate.load_pair",
+    "eval --save-results": "pld_slam_cli.evaluate.load_pair",
+    "places": "pld_slam_cli.places.read_images",
+    "vocabulary build": "pld_slam_cli.vocabulary.training_descriptors",
+    "ablate": "pld_slam_cli.ablate.prepare_ablation",
+    "regress": "pld_slam_cli.regress.select_cells",
+}
+"""Where each command's work starts: it must not be reached when the output path cannot be written."""
+
+
+@pytest.mark.parametrize("command", WORK_BEFORE_OUTPUT_CHECK)
+def test_every_command_checks_its_output_path_before_any_work(synthetic_sequence, tmp_path, monkeypatch, command):
+    def refuse(*args, **kwargs):
+        raise AssertionError(f"{command} started its work before checking its output path")
+
+    monkeypatch.setattr(WORK_BEFORE_OUTPUT_CHECK[command], refuse)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder\n")
+    blocked = a_file / "out"
+    baseline = tmp_path / "baseline.json"
+    baseline.write_text(json.dumps({"cells": [{"name": "a", "sequence": {"path": str(synthetic_sequence)}}]}))
+    poses = synthetic_sequence / "poses.txt"
+    args = {
+        "eval --plot": ("eval", poses, poses, "--plot", blocked),
+        "eval --save-results": ("eval", poses, poses, "--save-results", blocked / "ate.zip"),
+        "places": ("places", synthetic_sequence / "image_0", "--out", blocked),
+        "vocabulary build": ("vocabulary", "build", synthetic_sequence, "--out", blocked / "vocabulary.npz"),
+        "ablate": ("ablate", synthetic_sequence, "--out", blocked),
+        "regress": ("regress", baseline, "--out", blocked),
+    }[command]
+    result = run(*args)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output.startswith(f"error: {blocked}: cannot write (") and result.output.count("\n") == 1
+
+
+def test_run_table_labels_of_any_length_keep_two_spaces_before_their_values(
+        synthetic_sequence, tmp_path, monkeypatch):
+    result = run("run", synthetic_sequence, "--out", tmp_path / "run", "--max-frames", 2, "--json")
+    summary = json.loads(result.output)
+    stage = "a_stage_whose_name_is_long"  # its row's label: 43 characters
+    monkeypatch.setattr("pld_slam_cli.run.STAGES", (*STAGES, stage))
+    summary["timing_ms"][stage] = {"median": 1.0, "mean": 2.0}
+    table = format_run_table(summary).splitlines()
+    assert f"{stage} ms/frame (median)  1.0 (mean 2.0)" in table
+    assert table[0] == "sequence" + " " * (len(stage) + len(" ms/frame (median)") + 2 - len("sequence")) + \
+        summary["sequence"]

@@ -71,6 +71,10 @@ def test_dump_reads_back_to_the_same_config(tmp_path):
         ("lines.enabled=1", "lines.enabled must be true or false"),
         ("loop.detector=netvlad", "loop.detector must be one of ggs, bow"),
         ("ggs.scale=1.5", "ggs.scale = 1.5 is outside"),
+        ("filters.point_grid_alpha=.nan", "filters.point_grid_alpha must be a finite number, got float nan"),
+        ("filters.point_grid_alpha=.inf", "filters.point_grid_alpha must be a finite number, got float inf"),
+        ("filters.point_grid_alpha=-.inf", "filters.point_grid_alpha must be a finite number, got float -inf"),
+        ("points.n_features=1000000000000", r"points.n_features = 1000000000000 is outside \[1, 100000\]"),
         ("points.nope=3", "unknown key points.nope"),
         ("nosection.key=3", "unknown section nosection"),
         ("points.n_features", "expected section.key=value"),
@@ -81,6 +85,25 @@ def test_bad_overrides_name_the_key(override, message):
     with pytest.raises(ConfigError, match=message) as raised:
         load_config(overrides=[override])
     assert f"--set {override}" in str(raised.value)
+
+
+def config_fields(kind: type) -> list[str]:
+    """``section.key`` of every config field of type ``kind``."""
+    return [f"{section.name}.{key.name}" for section in dataclasses.fields(Config)
+            for key in dataclasses.fields(section.default_factory()) if key.type in (kind, kind.__name__)]
+
+
+@pytest.mark.parametrize("value", [".nan", ".inf", "-.inf"])
+def test_no_number_field_takes_a_value_that_is_not_finite(value):
+    for key in config_fields(float):
+        with pytest.raises(ConfigError, match=f"{key} must be a finite number"):
+            load_config(overrides=[f"{key}={value}"])
+
+
+def test_no_integer_field_takes_a_value_beyond_a_32_bit_integer():
+    for key in config_fields(int):
+        with pytest.raises(ConfigError, match=rf"{key} = 2147483648 is outside \[.*, \d+\]"):
+            load_config(overrides=[f"{key}=2147483648"])
 
 
 def test_bad_file_errors_name_the_file(tmp_path):

@@ -391,7 +391,8 @@ def test_kitti_shorter_poses_cover_the_first_frames(tmp_path):
         (remove("image_1/000002.png"), "image_0/000002.png: no image with the same name in "),
         (empty("image_1"), "image_1: no .png images"),
         (lambda f: write_images(f / "dynamic_masks", ["000000.png"]), "dynamic_masks: 1 masks for 3 frames"),
-        (rewrite("image_0/000000.png", "not a png"), "000000.png: not a PNG image"),
+        (lambda f: [rewrite(f"image_0/{i:06d}.png", "not a png")(f) for i in range(3)],
+         "image_0: no image whose size can be read, the first: "),
     ],
 )
 def test_kitti_odometry_bad_input(tmp_path, break_it, expected):

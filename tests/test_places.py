@@ -429,3 +429,17 @@ def test_places_unreadable_image_is_a_one_line_error(tmp_path):
     result = run("places", folder, "--out", tmp_path / "out")
     assert result.exit_code == EXIT_USER_ERROR
     assert "2.jpg" in result.output
+
+
+@pytest.mark.parametrize("with_gt", [True, False])
+def test_places_where_no_image_has_an_earlier_one_to_match_is_a_one_line_error_before_any_work(
+        image_dir, tmp_path, monkeypatch, with_gt):
+    monkeypatch.setattr("pld_slam_cli.places.read_images", lambda paths: pytest.fail("images read"))
+    gt = tmp_path / "gt.csv"
+    np.savetxt(gt, ground_truth_matrix() != 0, fmt="%d", delimiter=",")
+    out = tmp_path / "out"
+    result = run("places", image_dir, *(("--gt", gt) if with_gt else ()), "--exclude-recent", 7, "--out", out)
+    assert result.exit_code == EXIT_USER_ERROR, result.output
+    assert result.output == (f"error: {image_dir}: no image has an earlier one to be compared with (8 images, "
+                             "the 7 before each left out by --exclude-recent)\n")
+    assert not out.exists()

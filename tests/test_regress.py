@@ -68,6 +68,23 @@ def test_update_refuses_to_record_a_failed_run():
      r"cell 1 \(a\): .*unknown key dynamic.gird"),
     ('{"cells": [{"name": "a", "sequence": {"path": "/x"}}, {"name": "a", "sequence": {"path": "/y"}}]}',
      "name 'a' is used twice"),
+    ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "ate_rmse_m": "0.1"}]}',
+     r"cell 1 \(a\): 'ate_rmse_m' must be a finite number >= 0 or null, got '0.1'"),
+    ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "ate_rmse_m": -1}]}',
+     r"cell 1 \(a\): 'ate_rmse_m' must be a finite number >= 0 or null, got -1"),
+    ('{"tolerance": {"relative": "10 %"}, "cells": []}', "tolerance: 'relative' must be a finite number >= 0"),
+    ('{"tolerance": {"relatve": 0.1}, "cells": []}', "tolerance: unknown key 'relatve' "),
+    ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "tolerance": {"absolute_m": null}}]}',
+     r"cell 1 \(a\): tolerance: 'absolute_m' must be a finite number >= 0, got None"),
+    ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "overrides": "lines.enabled=false"}]}',
+     r"cell 1 \(a\): 'overrides' must be a list of section.key=value strings"),
+    ('{"cells": [{"name": "a", "sequence": {"path": "/x"}, "max_frames": "10"}]}',
+     r"cell 1 \(a\): 'max_frames' must be a positive integer or null, got '10'"),
+    ('{"cells": [{"name": "a", "sequence": {"path": 7}}]}', r"cell 1: the sequence's 'path' must be a string"),
+    ('{"cells": [{"name": "a/b", "sequence": {"path": "/x"}}, {"name": "a_b", "sequence": {"path": "/y"}}]}',
+     r"cell 2: names 'a/b' and 'a_b' would write the same cell folder \(a_b\); rename one"),
+    ('{"cells": [{"name": "a", "sequence": {"synthetic": "stattic", "seed": 0, "frames": 5}}]}',
+     "cell 1: unknown synthetic scenario 'stattic'"),
 ])
 def test_a_malformed_baseline_is_an_error_naming_the_file_and_the_cell(tmp_path, content, message):
     path = tmp_path / "base.json"
@@ -76,3 +93,27 @@ def test_a_malformed_baseline_is_an_error_naming_the_file_and_the_cell(tmp_path,
         read_baseline(path)
     result = invoke(path)
     assert result.exit_code == 2 and "base.json" in result.output
+
+
+def test_a_baseline_that_is_not_utf8_is_an_error_naming_the_file(tmp_path):
+    path = tmp_path / "base.json"
+    path.write_bytes('{"description": "caf\u00e9", "cells": []}'.encode("latin-1"))
+    with pytest.raises(ConfigError, match=f"{path}: not UTF-8 text"):
+        read_baseline(path)
+    result = invoke(path)
+    assert result.exit_code == 2 and result.output.startswith(f"error: {path}: not UTF-8 text")
+
+
+def test_a_check_where_every_cell_is_skipped_says_nothing_was_checked_and_fails_unless_allowed(
+        tmp_path, monkeypatch):
+    monkeypatch.delenv("PLD_SLAM_DATA", raising=False)
+    baseline = write_json(tmp_path / "ci.json", {"cells": [
+        {"name": "real", "sequence": {"data": "kitti_odometry/sequences/06"}, "ate_rmse_m": 0.2}]})
+    result = invoke(baseline, "--out", tmp_path / "work")
+    assert result.exit_code == 2, result.output
+    assert "skipped (PLD_SLAM_DATA is not set)" in result.stdout
+    assert result.stderr == (f"error: {baseline}: nothing checked: its 1 cell was skipped (the table says why); "
+                             "--allow-skipped accepts that\n")
+    allowed = invoke(baseline, "--out", tmp_path / "work", "--allow-skipped")
+    assert allowed.exit_code == 0, allowed.output
+    assert allowed.stdout.endswith("\nnothing checked (1 skipped)\n")

@@ -19,7 +19,7 @@ The names and fields are those of the public argoverse-api (``ArgoverseStereoLoa
   of the 200 ms frame period) instead, for the reason every layout pairs by key
   (`pld_slam.datasets.files.paired_images`): a frame missing on one side must not shift
   every later pair. An image without a partner raises `DatasetError` naming it. The
-  image size is read from the first left JPEG's header (`jpeg_size`), not assumed.
+  image size is read from the first readable left JPEG's header (`jpeg_size`), not assumed.
 - Times: the left image's nanosecond timestamp / 1e9 [s] (the GPS-epoch nanoseconds of
   the release). Frame rate: the nominal 5 Hz (`FRAME_RATE`).
 - Camera: ``vehicle_calibration_stereo_info.json`` holds ``camera_data_``, a list of
@@ -55,7 +55,7 @@ import numpy as np
 
 from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import Calibration, read_json_calibration, stereo_camera_from_projections
-from pld_slam.datasets.files import image_files, jpeg_size, nearest_within, paired_images
+from pld_slam.datasets.files import first_image_size, image_files, jpeg_size, nearest_within, paired_images
 from pld_slam.datasets.generic import groundtruth_in_camera
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.camera import StereoCamera
@@ -90,7 +90,7 @@ def load(folder: Path) -> StereoSequence:
     folder = folder.resolve()
     left_ns, left_paths, right_paths = _paired_images(folder)
     calibration = _camera_entries(read_json_calibration(folder / CALIBRATION_FILE, "Argoverse calibration file"))
-    camera = _stereo_camera(calibration, jpeg_size(left_paths[0]))
+    camera = _stereo_camera(calibration, first_image_size(left_paths, jpeg_size))
     timestamps = left_ns / 1e9
     return StereoSequence(
         name=f"argoverse_{folder.name}",

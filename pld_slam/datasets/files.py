@@ -4,8 +4,9 @@ pairing, PNG sizes, times files, and ground truth sampled at frame times."""
 import math
 import re
 import struct
-from collections.abc import Callable, Hashable, Iterable, Mapping
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -95,9 +96,27 @@ def paired_images(
     return list(left.values()), [right[k] for k in left]
 
 
+def first_image_size(paths: Sequence[Path], image_size: Callable[[Path], tuple[int, int]]) -> tuple[int, int]:
+    """``(width, height)`` [px] of the first of ``paths`` whose header ``image_size`` reads (`png_size`,
+    `jpeg_size`): the size of a sequence's images.
+
+    A first image that cannot be read (a broken link, an empty file, not the format its
+    name says) does not stop the sequence: the run skips that frame as it skips any
+    unreadable one, and its world is the first usable frame. `DatasetError` naming the
+    folder and the first image's problem when no image's size can be read.
+    """
+    first_error = None
+    for path in paths:
+        try:
+            return image_size(path)
+        except DatasetError as error:
+            first_error = first_error or error
+    raise DatasetError(f"{paths[0].parent}: no image whose size can be read, the first: {first_error}")
+
+
 def png_size(path: Path) -> tuple[int, int]:
     """``(width, height)`` [px] of a PNG file from its IHDR header, without decoding it."""
-    with path.open("rb") as file:
+    with _opened_image(path) as file:
         header = file.read(_PNG_HEADER_BYTES)
     if (
         len(header) < _PNG_HEADER_BYTES
@@ -107,6 +126,15 @@ def png_size(path: Path) -> tuple[int, int]:
         raise DatasetError(f"{path}: not a PNG image (cannot read the image size)")
     width, height = struct.unpack(">II", header[16:24])
     return width, height
+
+
+def _opened_image(path: Path) -> BinaryIO:
+    """``path`` opened for reading bytes; `DatasetError` naming it when it cannot be (missing, a broken link,
+    no permission)."""
+    try:
+        return path.open("rb")
+    except OSError as error:
+        raise DatasetError(f"{path}: cannot read image ({error.strerror or error})") from None
 
 
 _JPEG_START = b"\xff\xd8"
@@ -119,7 +147,7 @@ def jpeg_size(path: Path) -> tuple[int, int]:
 
     Walks the segments from the start of the file (a few hundred bytes in practice).
     """
-    with path.open("rb") as file:
+    with _opened_image(path) as file:
         if file.read(2) != _JPEG_START:
             raise DatasetError(f"{path}: not a JPEG image (cannot read the image size)")
         while len(segment := file.read(4)) == 4 and segment[0] == 0xFF:

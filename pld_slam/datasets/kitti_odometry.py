@@ -9,8 +9,8 @@
   cy from ``P0`` and ``baseline = (P0[0, 3] - P1[0, 3]) / fx`` (the colour pair's also
   counts the two cameras' offsets along the optical axis:
   `pld_slam.datasets.calibration.stereo_camera_from_projections`). ``calib.txt`` has no
-  image size; we read it from the header of the first left PNG (24 bytes), so opening
-  decodes no image.
+  image size; we read it from the header of the first readable left PNG (24 bytes), so
+  opening decodes no image.
 - Times: ``times.txt``, one time [s] per line and per frame. It is required: every KITTI
   download has it, and a guessed frame rate would silently distort time-based metrics.
 - Frame rate: KITTI's nominal 10 Hz (`FRAME_RATE`); for what ``pld-slam synth`` wrote,
@@ -41,7 +41,7 @@ from pld_slam.datasets.calibration import (
     read_kitti_calibration,
     stereo_camera_from_projections,
 )
-from pld_slam.datasets.files import natural_sorted, paired_image_folders, png_size, read_times
+from pld_slam.datasets.files import first_image_size, natural_sorted, paired_image_folders, png_size, read_times
 from pld_slam.datasets.kitti_cameras import CameraPair, chosen_pair
 from pld_slam.errors import DatasetError
 from pld_slam.geometry.se3 import inverse
@@ -78,7 +78,7 @@ def load(folder: Path, cameras: str = "auto") -> StereoSequence:
     calibration = read_kitti_calibration(folder / "calib.txt")
     P_left, P_right = (calibration.array(key, (3, 4), PINHOLE_ENTRIES) for key in pair.keys)
     camera = stereo_camera_from_projections(
-        P_left, P_right, *png_size(left_paths[0]), source=calibration.path, keys=pair.keys
+        P_left, P_right, *first_image_size(left_paths, png_size), source=calibration.path, keys=pair.keys
     )
     synth = _synth_metadata(folder)
     return StereoSequence(

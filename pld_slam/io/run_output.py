@@ -6,14 +6,22 @@ Which files a run writes, its plots included, is `pld_slam.report.run_files`'s.
 An output folder holds one run's files only: `prepare_output_folder` deletes the files
 an earlier run left there (`RUN_FILES`, nothing else of the user's) before a run writes
 its first, so a run that writes fewer files (under 2 frames: no plot) or stops half way
-never sits beside the plot or loops of the run before.
+never sits beside the plot or loops of the run before. The one exception is the partial
+trajectory of a run that did not finish (killed, or its final files not written): the
+only record of that run, it is kept under a numbered name (`keep_partial_trajectory`).
+
+An output folder holds one run at a time: a run takes the folder's lock (`RUN_LOCK`,
+`lock_output_folder`) before it deletes or writes anything there, so a second run into
+the same folder is refused instead of deleting the first one's files as it writes them.
 
 Every OSError on output becomes an `OutputError` naming the path, so that an output
 folder that cannot be written reaches the user as one line, like bad input, and not as
 an internal error.
 """
 
+import itertools
 import json
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -21,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from pld_slam.errors import OutputError
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.io.trajectory import TUM_HEADER, tum_rows
 from pld_slam.system import STAGES, FrameRecord
 from pld_slam.trajectory import Trajectory
@@ -40,31 +49,102 @@ FRAMES = "frames.csv"
 TIMING_PLOT = "timing.png"
 MAP_PLY = "map.ply"
 KEYFRAMES_TUM = "keyframes.tum.txt"
+RUN_LOCK = "run.lock"
+"""The output folder's lock while a run writes there: the process id of the run, a line."""
 RUN_FILES = (*TRAJECTORY_FILES.values(), TRAJECTORY_PARTIAL, SUMMARY, FRAMES, PLOT, LOOPS, TIMING_PLOT, MAP_PLY,
              KEYFRAMES_TUM)
 """Every file a run may write into its output folder; `prepare_output_folder` deletes these."""
 
 
-def create_output_folder(folder: Path) -> None:
-    """Create ``folder`` and its parents if needed; `OutputError` when that fails (e.g. under a file)."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OutputError.from_os_error(folder, error) from None
-
-
-def prepare_output_folder(folder: Path) -> None:
-    """Create ``folder`` if needed and delete the `RUN_FILES` an earlier run left in it.
+def prepare_output_folder(folder: Path) -> Path | None:
+    """Delete the `RUN_FILES` an earlier run left in ``folder``, keeping its partial trajectory; return the
+    name that was kept under (`keep_partial_trajectory`), None when there was none.
 
     Other files and subfolders (yours, or an ablation cell's ``cell.json``) are kept.
-    `OutputError` when the folder cannot be created or a file not deleted.
+    `OutputError` when a file cannot be renamed or deleted.
     """
-    create_output_folder(folder)
+    kept = keep_partial_trajectory(folder)
     for name in RUN_FILES:
         try:
             (folder / name).unlink(missing_ok=True)
         except OSError as error:
             raise OutputError.from_os_error(folder / name, error) from None
+    return kept
+
+
+def keep_partial_trajectory(folder: Path) -> Path | None:
+    """Rename the `TRAJECTORY_PARTIAL` of a run that did not finish to ``trajectory.partial.N.tum.txt``, the first
+    free N from 1, and return that path; None when there is no such file."""
+    partial = folder / TRAJECTORY_PARTIAL
+    if not partial.exists():
+        return None
+    stem = TRAJECTORY_PARTIAL.removesuffix(".tum.txt")
+    kept = next(folder / f"{stem}.{n}.tum.txt" for n in itertools.count(1)
+                if not (folder / f"{stem}.{n}.tum.txt").exists())
+    try:
+        partial.rename(kept)
+    except OSError as error:
+        raise OutputError.from_os_error(partial, error) from None
+    return kept
+
+
+def lock_output_folder(folder: Path) -> str | None:
+    """Create ``folder`` if needed and take its lock: `RUN_LOCK` created atomically (``O_CREAT | O_EXCL``) with
+    this process's id. Return the ended run whose lock was taken over as the lock names it (``pid 123``, or
+    ``no pid`` when a run was killed before writing it), None when there was no lock.
+
+    `OutputError` naming the folder and the process when a running process holds the lock (or when another
+    run took it over at the same moment), or when the lock cannot be written.
+    """
+    create_output_folder(folder)
+    lock = folder / RUN_LOCK
+    ended = None
+    for _ in range(2):  # the second attempt after an ended run's lock was removed
+        try:
+            descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            owner = lock_owner(lock)
+            if owner is not None and process_is_running(owner):
+                raise OutputError(f"{folder}: in use by another run (pid {owner}); wait for it to end, or delete "
+                                  f"{lock} if no run is writing there") from None
+            ended = "no pid" if owner is None else f"pid {owner}"
+            remove_lock(lock)
+            continue
+        except OSError as error:
+            raise OutputError.from_os_error(lock, error) from None
+        with os.fdopen(descriptor, "w") as file:
+            file.write(f"{os.getpid()}\n")
+        return ended
+    raise OutputError(f"{folder}: another run took its lock ({lock}) at the same moment")
+
+
+def lock_owner(lock: Path) -> int | None:
+    """The process id a `RUN_LOCK` file holds; None when it holds none (a run killed as it took the lock) or is
+    gone."""
+    try:
+        pid = int(lock.read_text())
+    except (OSError, ValueError):
+        return None
+    return pid if pid > 0 else None
+
+
+def process_is_running(pid: int) -> bool:
+    """Whether process ``pid`` exists (signal 0 tests that; a process of another user raises PermissionError)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass
+    return True
+
+
+def remove_lock(lock: Path) -> None:
+    """Delete a `RUN_LOCK` file; one that cannot be deleted is left, to be taken over as an ended run's."""
+    try:
+        lock.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 class PartialTrajectory:
@@ -72,10 +152,13 @@ class PartialTrajectory:
 
     The final trajectory files are written once, at the end of a run, so a run killed
     hard (SIGKILL, out of memory, a lost machine) would leave nothing; this file keeps
-    what was tracked until then. Each row is flushed to the operating system as it is
-    written, which survives a killed process (not a power cut: we do not fsync, as that
-    would cost a disk write per frame). The poses are those at tracking time; the final
-    files carry the later corrections of BA and loop closing, so the two may differ.
+    what was tracked until then. Each row goes to the operating system whole, as it is
+    written (the file is unbuffered), which survives a killed process (not a power cut:
+    we do not fsync, as that would cost a disk write per frame). A row that cannot be
+    written whole (a full disk) is cut off again, so the file stays readable to its last
+    whole row, and the error is the run's (`OutputError`). The poses are those at
+    tracking time; the final files carry the later corrections of BA and loop closing,
+    so the two may differ.
 
     Opening the file (`start`) is also the check that the output folder can be created
     and written, done before the first frame so that a bad ``--out`` costs nothing.
@@ -84,31 +167,55 @@ class PartialTrajectory:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._file = None  # opened by start
+        self._whole_rows_bytes = 0  # the file's size up to its last whole row
+        self._write_failed = False
 
     def start(self) -> None:
         """Create the folder and write the `TUM_HEADER` line; `OutputError` when either fails."""
         create_output_folder(self.path.parent)
         try:
-            self._file = self.path.open("w")
-            self._write_line(TUM_HEADER)
+            self._file = self.path.open("wb", buffering=0)
         except OSError as error:
             raise OutputError.from_os_error(self.path, error) from None
+        self._write_row(TUM_HEADER)
 
     def append(self, timestamp: float, T_w_c: np.ndarray) -> None:
-        """Append the TUM row of one frame (time [s], (4, 4) pose) and flush it."""
-        try:
-            self._write_line(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
-        except OSError as error:
-            raise OutputError.from_os_error(self.path, error) from None
+        """Append the TUM row of one frame (time [s], (4, 4) pose)."""
+        self._write_row(tum_rows(Trajectory(np.array([timestamp]), T_w_c[None]))[0])
 
-    def _write_line(self, line: str) -> None:
-        """Write ``line`` and a newline, flushed to the operating system."""
-        self._file.write(line + "\n")
-        self._file.flush()
+    def _write_row(self, line: str) -> None:
+        """Write ``line`` and a newline to the operating system; on an OSError cut the file back to its last
+        whole row and raise `OutputError`."""
+        row = memoryview((line + "\n").encode())
+        try:
+            while row:  # an unbuffered write may take part of a row
+                row = row[self._file.write(row):]
+        except OSError as error:
+            self._write_failed = True
+            self._cut_to_whole_rows()
+            raise OutputError.from_os_error(self.path, error) from None
+        self._whole_rows_bytes = self._file.tell()
+
+    def _cut_to_whole_rows(self) -> None:
+        """Truncate the file after its last whole row (the part of a row a full disk took would make the file
+        unreadable); a failure here leaves it as it is, the write's error being the one reported."""
+        try:
+            self._file.seek(self._whole_rows_bytes)
+            self._file.truncate()
+        except OSError:
+            pass
 
     def close(self) -> None:
-        """Close the file; it stays on disk."""
-        self._file.close()
+        """Close the file; it stays on disk. `OutputError` when closing fails, unless a write failed before
+        (that error is the one the run reports)."""
+        file, self._file = self._file, None
+        if file is None:
+            return
+        try:
+            file.close()
+        except OSError as error:
+            if not self._write_failed:
+                raise OutputError.from_os_error(self.path, error) from None
 
     def discard(self) -> None:
         """Close and delete the file, once the final trajectory files hold every frame."""

@@ -58,8 +58,9 @@ What the issue leaves open, and what we decide:
   and average precision are NaN (``null`` in JSON).
 """
 
+import functools
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -192,16 +193,25 @@ def place_similarity(images: Iterable[np.ndarray], detector: str = "ggs", vocabu
     -------
     (N, N) float64: ``[i, j]`` higher = more similar for ``j < i - exclude_recent``, NaN elsewhere.
     """
+    return place_scorer(detector, vocabulary, exclude_recent, config)(images)
+
+
+def place_scorer(detector: str = "ggs", vocabulary: Path | None = None, exclude_recent: int = 0,
+                 config: Config = Config()) -> Callable[[Iterable[np.ndarray]], np.ndarray]:
+    """`place_similarity` of the images, its detector and options checked (and a ``bow`` vocabulary loaded)
+    now, before any image is read; `PldSlamError` for a detector without its vocabulary or with one it does
+    not use."""
     if exclude_recent < 0:
         raise ValueError(f"exclude_recent must be >= 0, got {exclude_recent}")
     if detector == "ggs":
         if vocabulary is not None:
             raise PldSlamError("a vocabulary is only used by the bow detector, not by ggs")
-        return ggs_place_scores(images, config.ggs, exclude_recent)
+        return functools.partial(ggs_place_scores, config=config.ggs, exclude_recent=exclude_recent)
     if detector == "bow":
         if vocabulary is None:
             raise PldSlamError(f"the bow detector needs a vocabulary (--vocabulary FILE); {VOCABULARY_HINT}")
-        return bow_place_scores(images, Vocabulary.load(vocabulary), config.points, exclude_recent)
+        return functools.partial(bow_place_scores, vocabulary=Vocabulary.load(vocabulary), config=config.points,
+                                 exclude_recent=exclude_recent)
     raise PldSlamError(f"unknown place detector {detector!r} (one of {', '.join(DETECTORS)})")
 
 

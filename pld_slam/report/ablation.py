@@ -16,6 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from pld_slam.datasets import open_sequence, with_cameras
+from pld_slam.errors import PldSlamError
 from pld_slam.io.run_output import TRAJECTORY_TUM
 from pld_slam.io.trajectory import read_tum
 from pld_slam.report.cells import CellSpec, plan_cells
@@ -27,6 +28,7 @@ from pld_slam.report.store import (
     groundtruth_path,
     read_ablation,
     recorded_rows,
+    same_folder_names,
     write_ablation,
     write_groundtruth,
 )
@@ -50,8 +52,13 @@ def prepare_ablation(
     Raises
     ------
     PldSlamError
-        For an unreadable sequence or an invalid cell config, before anything runs.
+        For variants whose cells would write one folder (`same_folder_names`), an
+        unreadable sequence or an invalid cell config, before anything runs.
     """
+    clash = same_folder_names(variant.name for variant in suite.variants)
+    if clash is not None:
+        raise PldSlamError(f"variants {clash[0]!r} and {clash[1]!r} of suite {suite.name} would write the same cell "
+                           f"folder (cells/SEQUENCE/{folder_name(clash[1])}); rename one")
     sequences = [open_sequence(Path(folder)) for folder in sequence_dirs]
     sequences = [with_cameras(sequence, load_run_config(sequence, (), overrides).config.dataset.cameras)
                  for sequence in sequences]  # the pair --set dataset.cameras chooses, and its ground truth

@@ -47,6 +47,7 @@ from pld_slam import __version__
 from pld_slam.config import Config, config_to_dict, dump_config
 from pld_slam.datasets import StereoSequence, require_cameras
 from pld_slam.frame_extraction import die_with_parent
+from pld_slam.io.run_output import RUN_LOCK
 from pld_slam.loop.loop_closing import check_vocabulary_given
 from pld_slam.report.suite import Suite
 from pld_slam.run_config import load_run_config
@@ -230,7 +231,8 @@ def execute_cell(spec: CellSpec, timeout: float | None = None, max_memory_mb: in
         run_dir = Path(scratch) / "run"
         command = run_command(spec, run_dir, config_path)
         returncode, stderr, limit_reached = _run_child(command, timeout, max_memory_mb)
-        files = {path.name: path.read_bytes() for path in sorted(run_dir.glob("*")) if path.is_file()}
+        files = {path.name: path.read_bytes() for path in sorted(run_dir.glob("*"))
+                 if path.is_file() and path.name != RUN_LOCK}  # the lock a killed run leaves is no result
     status, reason = _status(returncode, stderr, limit_reached, files)
     return CellOutcome(spec.key, status, reason, time.perf_counter() - start, files)
 

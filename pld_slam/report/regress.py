@@ -26,6 +26,7 @@ must see the code as it is, which the cell key (package version, not code) canno
 """
 
 import json
+import math
 import os
 import shutil
 from collections.abc import Sequence
@@ -36,9 +37,9 @@ from pld_slam.datasets import open_sequence
 from pld_slam.errors import ConfigError, PldSlamError
 from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.runner import run_cells
-from pld_slam.report.store import read_cell
+from pld_slam.report.store import folder_name, read_cell, read_json, same_folder_names
 from pld_slam.report.suite import Suite, Variant, check_overrides
-from pld_slam.synth.scenarios import CAMERAS
+from pld_slam.synth.scenarios import CAMERAS, SCENARIOS
 from pld_slam.synth.writer import ensure_sequence
 
 DEFAULT_TOLERANCE = {"relative": 0.10, "absolute_m": 0.001}
@@ -82,20 +83,20 @@ def read_baseline(path: Path, missing_ok: bool = False) -> dict:
     Raises
     ------
     ConfigError
-        For an unreadable file, bad JSON, or a cell without name or sequence or with an
-        invalid override, naming the file and the cell.
+        For an unreadable file, one that is not UTF-8 or not JSON, a tolerance or a value
+        of the wrong type, or a cell without name or sequence or with an invalid override,
+        naming the file and the cell: all found before any cell runs.
     """
     path = Path(path)
     if not path.exists() and missing_ok:
         return {"description": "", "tolerance": dict(DEFAULT_TOLERANCE), "cells": []}
     try:
-        baseline = json.loads(path.read_text())
+        baseline = read_json(path, ConfigError)
     except OSError as error:
         raise ConfigError(f"{path}: cannot read baseline ({error.strerror})") from None
-    except json.JSONDecodeError as error:
-        raise ConfigError(f"{path}:{error.lineno}: not valid JSON ({error.msg})") from None
     if not isinstance(baseline, dict) or not isinstance(baseline.get("cells"), list):
         raise ConfigError(f"{path}: a baseline needs a 'cells' list")
+    _check_tolerance(baseline.get("tolerance", {}), f"{path}: tolerance")
     names = [cell.get("name") for cell in baseline["cells"] if isinstance(cell, dict)]
     for n, cell in enumerate(baseline["cells"]):
         where = f"{path}: cell {n + 1}"
@@ -104,9 +105,44 @@ def read_baseline(path: Path, missing_ok: bool = False) -> dict:
         if names.count(cell["name"]) > 1:
             raise ConfigError(f"{where}: name {cell['name']!r} is used twice")
         _sequence_kind(cell["sequence"], where)
-        check_overrides(tuple(cell.get("overrides", ())), f"{where} ({cell['name']})")
+        _check_cell_values(cell, f"{where} ({cell['name']})")
+    clash = same_folder_names(names)
+    if clash is not None:
+        raise ConfigError(f"{path}: cell {names.index(clash[1]) + 1}: names {clash[0]!r} and {clash[1]!r} would write "
+                          f"the same cell folder ({folder_name(clash[1])}); rename one")
     baseline.setdefault("tolerance", dict(DEFAULT_TOLERANCE))
     return baseline
+
+
+def _check_cell_values(cell: dict, where: str) -> None:
+    """`ConfigError` at ``where`` for a cell's overrides, ATE, frame count or tolerance of the wrong type."""
+    overrides = cell.get("overrides", [])
+    if not isinstance(overrides, list) or not all(isinstance(override, str) for override in overrides):
+        raise ConfigError(f"{where}: 'overrides' must be a list of section.key=value strings, got {overrides!r}")
+    check_overrides(tuple(overrides), where)
+    ate = cell.get("ate_rmse_m")
+    if ate is not None and not _is_size(ate):
+        raise ConfigError(f"{where}: 'ate_rmse_m' must be a finite number >= 0 or null, got {ate!r}")
+    frames = cell.get("max_frames")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+        raise ConfigError(f"{where}: 'max_frames' must be a positive integer or null, got {frames!r}")
+    _check_tolerance(cell.get("tolerance", {}), f"{where}: tolerance")
+
+
+def _check_tolerance(tolerance, where: str) -> None:
+    """`ConfigError` at ``where`` unless ``tolerance`` maps keys of `DEFAULT_TOLERANCE` to finite numbers >= 0."""
+    if not isinstance(tolerance, dict):
+        raise ConfigError(f"{where}: expected an object with {', '.join(DEFAULT_TOLERANCE)}, got {tolerance!r}")
+    for key, value in tolerance.items():
+        if key not in DEFAULT_TOLERANCE:
+            raise ConfigError(f"{where}: unknown key {key!r} (one of {', '.join(DEFAULT_TOLERANCE)})")
+        if not _is_size(value):
+            raise ConfigError(f"{where}: {key!r} must be a finite number >= 0, got {value!r}")
+
+
+def _is_size(value) -> bool:
+    """Whether ``value`` is a finite number >= 0 (a JSON number, not true or false)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
 
 
 def write_baseline(path: Path, baseline: dict) -> None:
@@ -120,8 +156,13 @@ def _sequence_kind(reference, where: str) -> str:
     kinds = [kind for kind in ("synthetic", "data", "path") if isinstance(reference, dict) and kind in reference]
     if len(kinds) != 1:
         raise ConfigError(f"{where}: 'sequence' must hold exactly one of synthetic, data, path")
+    if kinds[0] != "synthetic" and not isinstance(reference[kinds[0]], str):
+        raise ConfigError(f"{where}: the sequence's {kinds[0]!r} must be a string, got {reference[kinds[0]]!r}")
     if kinds[0] == "synthetic" and not all(isinstance(reference.get(k), int) for k in ("seed", "frames")):
         raise ConfigError(f"{where}: a synthetic sequence needs an integer 'seed' and 'frames'")
+    if kinds[0] == "synthetic" and reference["synthetic"] not in SCENARIOS:
+        raise ConfigError(f"{where}: unknown synthetic scenario {reference['synthetic']!r} (one of "
+                          f"{', '.join(SCENARIOS)})")
     if kinds[0] == "synthetic" and reference.get("camera", "default") not in CAMERAS:
         raise ConfigError(f"{where}: a synthetic sequence's 'camera' must be one of {', '.join(CAMERAS)}")
     return kinds[0]

@@ -12,7 +12,9 @@ table, loops, plots, map), each in its format from `pld_slam.io`.
 """
 
 import dataclasses
+import sys
 from collections.abc import Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,7 @@ from pld_slam.eval.run_summary import summarise_run
 from pld_slam.eval.timing_plot import plot_frame_times
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.map_ply import MapCloud, map_cloud, write_map_ply
+from pld_slam.io.output_folder import create_output_folder
 from pld_slam.io.run_output import (
     DEFAULT_FORMATS,
     FRAMES,
@@ -33,21 +36,23 @@ from pld_slam.io.run_output import (
     LOOPS,
     MAP_PLY,
     PLOT,
+    RUN_LOCK,
     SUMMARY,
     TIMING_PLOT,
     TRAJECTORY_FILES,
     TRAJECTORY_PARTIAL,
     PartialTrajectory,
-    create_output_folder,
     frame_table,
+    lock_output_folder,
     prepare_output_folder,
+    remove_lock,
     write_frame_table,
     write_loop_candidates,
     write_summary,
 )
 from pld_slam.io.trajectory import write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
-from pld_slam.run_config import load_run_config
+from pld_slam.run_config import RunConfig, load_run_config
 from pld_slam.system import FrameObserver, FrameRecord, System
 from pld_slam.tracking.tracker import TrackedFrame
 from pld_slam.trajectory import Trajectory
@@ -75,14 +80,18 @@ def run_and_write(
     A sequence with moving-object masks has its dynamic labels scored against them
     (`MaskScores`), the summary's precision and recall.
 
-    The files an earlier run left in ``out`` are deleted first (`prepare_output_folder`),
-    so the folder never mixes two runs. The output folder is created and written to (``trajectory.partial.tum.txt``, see
-    `PartialTrajectory`) after the input and config are checked and before the first
-    frame, so a bad ``out`` stops the run at once with an `OutputError` instead of
-    after every frame is lost. Each frame's tracked pose is appended to that file as
-    the run goes, so a run killed hard keeps its poses so far; the file is deleted once
-    the final trajectory files are written. Ctrl-C during the frames raises
-    `RunInterrupted` once the files are written, naming them (`interrupted_message`).
+    Once the config is checked, the run takes ``out``'s lock (`locked_output_folder`): a
+    second run into the same folder stops there with an `OutputError`. The files an
+    earlier run left in ``out`` are then deleted (`prepare_output_folder`), so the folder
+    never mixes two runs, except the partial trajectory of a run that did not finish,
+    which is kept under a numbered name. The output folder is written to
+    (``trajectory.partial.tum.txt``, see `PartialTrajectory`) before the first frame, so
+    a bad ``out`` stops the run at once with an `OutputError` instead of after every
+    frame is lost. Each frame's tracked pose is appended to that file as the run goes,
+    so a run killed hard keeps its poses so far; the file is deleted once the final
+    trajectory files are written. Ctrl-C during the frames raises `RunInterrupted` once
+    the files are written, naming them (`interrupted_message`). A lock taken over and a
+    partial trajectory kept are each a ``warning:`` line on stderr (`warn`).
 
     Returns
     -------
@@ -91,6 +100,33 @@ def run_and_write(
     """
     run_config = load_run_config(sequence, config_paths, overrides)
     sequence = with_cameras(sequence, run_config.config.dataset.cameras).scaled(run_config.config.dataset.scale)
+    with locked_output_folder(out):
+        return run_into_locked_folder(sequence, run_config, out, max_frames, save_dynamic, formats)
+
+
+def warn(message: str) -> None:
+    """Print ``warning: message`` on stderr: something about the output folder the user should know."""
+    print(f"warning: {message}", file=sys.stderr)
+
+
+@contextmanager
+def locked_output_folder(out: Path):
+    """Hold ``out``'s lock (`lock_output_folder`) for the block, saying when an ended run's lock was taken over;
+    the lock goes at the end of the block, however it ends."""
+    ended = lock_output_folder(out)
+    if ended is not None:
+        warn(f"{out / RUN_LOCK}: took over the lock of a run that has ended ({ended})")
+    try:
+        yield
+    finally:
+        remove_lock(out / RUN_LOCK)
+
+
+def run_into_locked_folder(
+    sequence: StereoSequence, run_config: RunConfig, out: Path, max_frames: int | None, save_dynamic: Path | None,
+    formats: tuple[str, ...],
+) -> dict:
+    """`run_and_write` once ``out`` is locked and ``sequence`` read from its pair and scaled."""
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
@@ -98,11 +134,13 @@ def run_and_write(
     system = System(sequence, run_config.config, observers,
                     record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
     try:
-        prepare_output_folder(out)
+        kept = prepare_output_folder(out)
         partial.start()
     except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
         system.close()
         raise
+    if kept is not None:
+        warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
     n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
     def progress(indices):

@@ -18,8 +18,9 @@ changed (the config, the sequence or the version did).
 
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 from pld_slam.errors import PldSlamError
 from pld_slam.eval.metrics import ate_result
@@ -57,11 +58,43 @@ def folder_name(name: str) -> str:
     return name.replace(os.sep, "_").replace("/", "_") or "_"
 
 
+def same_folder_names(names: Iterable[str]) -> tuple[str, str] | None:
+    """The first two of ``names`` that differ but have one `folder_name` (``a/b`` and ``a_b``): their cells
+    would write one folder. None when there are none."""
+    first_of = {}
+    for name in names:
+        first = first_of.setdefault(folder_name(name), name)
+        if first != name:
+            return first, name
+    return None
+
+
+def read_json(path: Path, error: type[PldSlamError] = PldSlamError) -> Any:
+    """The JSON value of the file ``path``; ``error`` naming it when it is not UTF-8 text or not valid JSON.
+    An OSError is left to the caller, to whom a missing file means different things."""
+    try:
+        return json.loads(Path(path).read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as problem:
+        raise error(f"{path}: not UTF-8 text (byte {problem.start})") from None
+    except json.JSONDecodeError as problem:
+        raise error(f"{path}:{problem.lineno}: not valid JSON ({problem.msg})") from None
+
+
+def read_cell_file(path: Path) -> dict:
+    """The row of a cell's ``cell.json``, checked to hold every `ROW_COLUMNS` key; `PldSlamError` naming the
+    file otherwise."""
+    row = read_json(path)
+    if not isinstance(row, dict) or not set(ROW_COLUMNS) <= set(row):
+        raise PldSlamError(f"{path}: expected an object with the keys {', '.join(ROW_COLUMNS)}; run the "
+                           "ablation again to redo the cell")
+    return row
+
+
 def read_cell(out: Path, spec: CellSpec) -> dict | None:
     """The row recorded for ``spec``'s cell, None when there is none or it is unreadable."""
     try:
-        return json.loads((cell_dir(out, spec) / CELL_FILE).read_text())
-    except (OSError, json.JSONDecodeError):
+        return read_cell_file(cell_dir(out, spec) / CELL_FILE)
+    except (OSError, PldSlamError):
         return None
 
 
@@ -137,25 +170,37 @@ def write_ablation(out: Path, suite: Suite, labels: Sequence[str], sequence_dirs
 
 
 def read_ablation(out: Path) -> dict:
-    """``ablation.json`` of ``out``, or `PldSlamError` saying the folder is no ablation output."""
+    """``ablation.json`` of ``out``, checked to list its ``variants`` and ``sequences``; `PldSlamError` saying
+    the folder is no ablation output, or naming the file and its problem."""
     path = Path(out) / ABLATION_FILE
     try:
-        return json.loads(path.read_text())
+        ablation = read_json(path)
     except OSError:
         raise PldSlamError(f"{out}: no {ABLATION_FILE}; not the output folder of pld-slam ablate") from None
-    except json.JSONDecodeError:
-        raise PldSlamError(f"{path}: not valid JSON") from None
+    if not isinstance(ablation, dict) or not all(is_list_of_names(ablation.get(key)) for key in LISTED):
+        raise PldSlamError(f"{path}: expected an object listing the {' and the '.join(LISTED)} (lists of names)")
+    return ablation
+
+
+LISTED = ("variants", "sequences")
+"""The lists of ``ablation.json`` the report reads."""
+
+
+def is_list_of_names(value) -> bool:
+    """Whether ``value`` is a list of strings."""
+    return isinstance(value, list) and all(isinstance(item, str) for item in value)
 
 
 def recorded_rows(out: Path) -> list[dict]:
-    """The row of every cell of ``ablation.json`` that has one, in table order."""
+    """The row of every cell of ``ablation.json`` that has one, in table order; `PldSlamError` naming the first
+    ``cell.json`` that is unreadable or malformed (`read_cell_file`)."""
     ablation = read_ablation(out)
     rows = []
     for sequence in ablation["sequences"]:
         for variant in ablation["variants"]:
             path = cell_folder(out, sequence, variant) / CELL_FILE
             if path.is_file():
-                rows.append(json.loads(path.read_text()))
+                rows.append(read_cell_file(path))
     return rows
 
 
