@@ -3,17 +3,20 @@ and the one-line error without the optional rerun SDK."""
 
 import sys
 from collections import defaultdict
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
+from map_fixtures import add_landmarks, camera_at, insert_observer
 
 from pld_slam.config import load_config
 from pld_slam.datasets import open_sequence
-from pld_slam.report.rerun_recording import CLASS_COLOURS, feature_classes
+from pld_slam.mapping.map import Map
+from pld_slam.report.rerun_recording import CLASS_COLOURS, feature_classes, open_recording
 from pld_slam.synth import write_sequence
-from pld_slam.system import System
+from pld_slam.system import RunResult, System
 from pld_slam_cli.main import EXIT_USER_ERROR, cli
 
 N_FRAMES = 6
@@ -59,6 +62,26 @@ def test_a_run_recorded_for_rerun_has_each_frame_and_the_map_at_each_keyframe(fo
     assert len(keyframes) >= 2
     for entity in PER_KEYFRAME:
         assert frames[entity] == keyframes, entity
+
+
+def test_a_closed_loop_is_recorded_as_an_edge_between_its_keyframes_centres(folder, tmp_path):
+    pytest.importorskip("rerun", reason='the rerun SDK is optional (pip install "pld-slam[viz]")')
+    from rerun.chunk import RrdReader
+
+    world_map = Map(covisibility_min_shared=20)
+    points, _ = add_landmarks(world_map, 3)
+    keyframes = [insert_observer(world_map, points, T_c_w=camera_at([i, 0.0, 2.0 * i])) for i in range(4)]
+    result = RunResult(map=world_map, loop_closing=SimpleNamespace(loops=[]))
+    with open_recording(tmp_path / "loop.rrd", open_sequence(folder)) as recording:
+        recording.keyframe(keyframes[2], result)  # no loop yet
+        result.loop_closing.loops.append(SimpleNamespace(keyframe=3, candidate=0))
+        recording.keyframe(keyframes[3], result)
+    chunks = [chunk for chunk in RrdReader(tmp_path / "loop.rrd").stream() if chunk.entity_path == "/world/map/loops"]
+    assert len(chunks) == 1
+    batch = chunks[0].to_record_batch()
+    assert batch.column("frame").to_pylist() == [keyframes[3].frame_index]
+    [strips] = batch.column("LineStrips3D:strips").to_pylist()
+    np.testing.assert_allclose(strips, [[[3.0, 0.0, 6.0], [0.0, 0.0, 0.0]]])
 
 
 def test_the_features_of_a_frame_are_static_dynamic_or_outliers_once_each(folder):
