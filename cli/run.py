@@ -161,9 +161,13 @@ def nothing_tracked(summary: dict) -> str | None:
 @click.option("--json", "as_json", is_flag=True, help="Print summary.json instead of a table.")
 @click.option("--save-dynamic", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Write each frame's features, coloured static (green) / dynamic (red), as PNGs here.")
+@click.option("--rerun", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="FILE.rrd",
+              help="Record the run for the rerun viewer (rerun FILE.rrd): each frame's image, features and pose, "
+                   'the map at each keyframe; needs pip install "pld-slam[viz]".')
 def run_command(sequence_path: Path, config_paths, overrides, scale: float | None, left_topic: str | None,
                 right_topic: str | None, gt_topic: str | None, calib: Path | None, out: Path | None,
-                max_frames: int | None, formats: tuple[str, ...], as_json: bool, save_dynamic: Path | None) -> None:
+                max_frames: int | None, formats: tuple[str, ...], as_json: bool, save_dynamic: Path | None,
+                rerun: Path | None) -> None:
     """Run PLD-SLAM on the stereo sequence SEQUENCE: a folder (KITTI, KITTI raw, EuRoC,
     generic, Argoverse) or a ROS bag (a ROS 1 .bag file or a ROS 2 bag folder).
 
@@ -183,12 +187,13 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     trajectory.partial.N.tum.txt; other files there are kept. The folder is locked while
     the run goes (run.lock): a second run into it is refused. A run that tracks
     none of its frames writes its files, then ends with an error (exit 2) naming the
-    first failed frame and the likely causes.
+    first failed frame and the likely causes. --rerun records the run into FILE.rrd for
+    the rerun viewer (open it with: rerun FILE.rrd).
     """
     sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))
     overrides = overrides if scale is None else (*overrides, f"dataset.scale={scale}")
     out = out if out is not None else Path("runs") / sequence.name
-    summary = run_and_write(sequence, out, config_paths, overrides, max_frames, save_dynamic, formats)
+    summary = run_and_write(sequence, out, config_paths, overrides, max_frames, save_dynamic, formats, rerun)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")
     failure = nothing_tracked(summary)
     if failure is not None:

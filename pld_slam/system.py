@@ -152,9 +152,14 @@ class RunResult:
         return self.map.keyframe_T_w_c(record.reference_keyframe) @ inverse(record.T_c_r)
 
 
-FrameObserver = Callable[[StereoFrame, TrackedFrame], None]
-"""Called with each frame that had images and what tracking made of it (e.g. to draw overlays, or
-to score the dynamic labels against ground-truth masks, `pld_slam.eval.dynamic_labels.MaskScores`)."""
+FrameObserver = Callable[[StereoFrame, StereoFeatures, TrackedFrame], None]
+"""Called with each frame that had images, its features and what tracking made of it (e.g. to draw
+overlays, or to score the dynamic labels against ground-truth masks,
+`pld_slam.eval.dynamic_labels.MaskScores`)."""
+
+KeyframeObserver = Callable[[KeyFrame, RunResult], None]
+"""Called with each new keyframe once local mapping inserted it and loop closing looked it up, and
+the run so far (its map and loop closing: e.g. to record the map as it grows)."""
 
 RecordObserver = Callable[[FrameRecord], None]
 """Called with the record of every frame as it is kept, skipped frames included (e.g. to
@@ -164,14 +169,17 @@ stream the poses to disk while the run goes)."""
 class System:
     """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame and then `close`.
 
-    ``observers`` see each frame with images and its `TrackedFrame`, in order; ``record_observer``
-    sees every frame's `FrameRecord`, a frame whose images could not be read included,
-    which is what a stream of the trajectory needs (the written trajectory has a row for
-    every frame).
+    ``observers`` see each frame with images, its features and its `TrackedFrame`, in order;
+    ``keyframe_observer`` each new keyframe after its mapping and loop lookup, with the
+    `RunResult` so far; ``record_observer`` sees every frame's `FrameRecord`, a frame whose
+    images could not be read included, which is what a stream of the trajectory needs (the
+    written trajectory has a row for every frame). Observers run after the frame's record is
+    kept: their time is not in the frame's ``stage_ms`` nor in ``wall_seconds``.
     """
 
     def __init__(self, sequence: StereoSequence, config: Config, observers: Sequence[FrameObserver] = (),
-                 record_observer: RecordObserver | None = None) -> None:
+                 record_observer: RecordObserver | None = None,
+                 keyframe_observer: KeyframeObserver | None = None) -> None:
         self.sequence = sequence
         self.config = config
         if sequence.scale != config.dataset.scale:
@@ -203,6 +211,7 @@ class System:
                                 frontend_worker=self._frames.worker, kernels_seconds=kernels_seconds)
         self._observers = tuple(observers)
         self._record_observer = record_observer
+        self._keyframe_observer = keyframe_observer
         self._started = False  # whether the first usable frame (module docstring) was tracked
 
     def process_frame(self, index: int) -> FrameRecord:
@@ -250,7 +259,9 @@ class System:
                              keyframe=tracked.keyframe if self.local_mapping is not None else None)
         record = self._add(record, start)
         for observer in self._observers:
-            observer(frame, tracked)
+            observer(frame, features, tracked)
+        if record.keyframe is not None and self._keyframe_observer is not None:
+            self._keyframe_observer(self.result.map.keyframes[reference], self.result)
         return record
 
     def _before_first_usable(self, index: int, timestamp: float, reason: str, start: float) -> FrameRecord:

@@ -77,7 +77,9 @@ def output_rows() -> list[tuple[list[str], str]]:
 def test_the_output_table_lists_exactly_the_files_run_writes_and_those_of_eval_plot():
     by_run = {name for names, writer in output_rows() if writer.startswith("`run") for name in names}
     by_eval = {name for names, writer in output_rows() if writer.startswith("`eval --plot") for name in names}
-    assert by_run == {*RUN_FILES, RUN_LOCK, "trajectory.partial.N.tum.txt"}  # not among the files a run deletes first
+    # the files of the run's folder (the lock and a kept partial trajectory are not among those a run deletes
+    # first), and the recording --rerun names
+    assert by_run == {*RUN_FILES, RUN_LOCK, "trajectory.partial.N.tum.txt", "FILE.rrd"}
     assert by_eval == {"trajectory_top_view.png", "ate_over_time.png"}
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.datasets import StereoFrame, StereoSequence
+from pld_slam.frontend import StereoFeatures
 from pld_slam.tracking.dynamic import DynamicLabels
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.tracker import TrackedFrame
@@ -81,6 +82,6 @@ class MaskScores:
         self.points: dict[int, LabelCounts] = {}
         self.lines: dict[int, LabelCounts] = {}
 
-    def __call__(self, frame: StereoFrame, tracked: TrackedFrame) -> None:
+    def __call__(self, frame: StereoFrame, features: StereoFeatures, tracked: TrackedFrame) -> None:
         mask = self.sequence.dynamic_mask(frame.index)
         self.points[frame.index], self.lines[frame.index] = frame_label_counts(tracked.dynamic, mask)

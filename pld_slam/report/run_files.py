@@ -4,7 +4,8 @@ The library's entry point for "run a sequence and write its files": ``pld-slam r
 ``pld-slam demo`` call it, and so does every ablation cell (`pld_slam.report.cell_run`,
 the cell's child process), so a cell measures exactly what a user runs. It attaches the
 run's observers: the partial trajectory streamed to disk (`PartialTrajectory`), the
-dynamic-label overlays when asked (`overlay_writer`), and the evaluation of the dynamic
+dynamic-label overlays when asked (`overlay_writer`), the recording for the rerun viewer
+when asked (`pld_slam.report.rerun_recording`), and the evaluation of the dynamic
 labels against the sequence's moving-object masks when it has them
 (`pld_slam.eval.dynamic_labels.MaskScores`; without masks no mask is read). It then
 decides which files the run writes (`write_run_outputs`: trajectories, summary, frame
@@ -14,7 +15,7 @@ table, loops, plots, map), each in its format from `pld_slam.io`.
 import dataclasses
 import sys
 from collections.abc import Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.plots import plot_trajectory_top_view
 from pld_slam.eval.run_summary import summarise_run
 from pld_slam.eval.timing_plot import plot_frame_times
+from pld_slam.frontend import StereoFeatures
 from pld_slam.io.dynamic_overlays import write_dynamic_overlay
 from pld_slam.io.map_ply import MapCloud, map_cloud, write_map_ply
 from pld_slam.io.output_folder import create_output_folder
@@ -52,6 +54,7 @@ from pld_slam.io.run_output import (
 )
 from pld_slam.io.trajectory import write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
+from pld_slam.report.rerun_recording import open_recording
 from pld_slam.run_config import RunConfig, load_run_config
 from pld_slam.system import FrameObserver, FrameRecord, System
 from pld_slam.tracking.tracker import TrackedFrame
@@ -68,7 +71,7 @@ class RunInterrupted(KeyboardInterrupt):
 
 def run_and_write(
     sequence: StereoSequence, out: Path, config_paths, overrides, max_frames: int | None,
-    save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS,
+    save_dynamic: Path | None = None, formats: tuple[str, ...] = DEFAULT_FORMATS, rerun: Path | None = None,
 ) -> dict:
     """Run the pipeline on ``sequence`` and write its files; on Ctrl-C or an error the files still get written.
 
@@ -78,7 +81,9 @@ def run_and_write(
     ``dataset.scale`` scales the sequence (`StereoSequence.scaled`). ``formats`` are the trajectory files' formats;
     ``save_dynamic`` a folder for each frame's dynamic-label overlay (`overlay_writer`).
     A sequence with moving-object masks has its dynamic labels scored against them
-    (`MaskScores`), the summary's precision and recall.
+    (`MaskScores`), the summary's precision and recall. ``rerun`` an ``.rrd`` file the run is
+    recorded to for the rerun viewer (`pld_slam.report.rerun_recording`), opened before the
+    first frame and finished when the run ends, however it ends.
 
     Once the config is checked, the run takes ``out``'s lock (`locked_output_folder`): a
     second run into the same folder stops there with an `OutputError`. The files an
@@ -101,7 +106,7 @@ def run_and_write(
     run_config = load_run_config(sequence, config_paths, overrides)
     sequence = with_cameras(sequence, run_config.config.dataset.cameras).scaled(run_config.config.dataset.scale)
     with locked_output_folder(out):
-        return run_into_locked_folder(sequence, run_config, out, max_frames, save_dynamic, formats)
+        return run_into_locked_folder(sequence, run_config, out, max_frames, save_dynamic, formats, rerun)
 
 
 def warn(message: str) -> None:
@@ -124,42 +129,45 @@ def locked_output_folder(out: Path):
 
 def run_into_locked_folder(
     sequence: StereoSequence, run_config: RunConfig, out: Path, max_frames: int | None, save_dynamic: Path | None,
-    formats: tuple[str, ...],
+    formats: tuple[str, ...], rerun: Path | None,
 ) -> dict:
     """`run_and_write` once ``out`` is locked and ``sequence`` read from its pair and scaled."""
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
-    partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
-    system = System(sequence, run_config.config, observers,
-                    record_observer=lambda record: partial.append(record.timestamp, record.T_w_c))
-    try:
-        kept = prepare_output_folder(out)
-        partial.start()
-    except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
-        system.close()
-        raise
-    if kept is not None:
-        warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
-    n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
+    with nullcontext() if rerun is None else open_recording(rerun, sequence) as recording:
+        observers += [] if recording is None else [recording.frame]
+        partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
+        system = System(sequence, run_config.config, observers,
+                        record_observer=lambda record: partial.append(record.timestamp, record.T_w_c),
+                        keyframe_observer=None if recording is None else recording.keyframe)
+        try:
+            kept = prepare_output_folder(out)
+            partial.start()
+        except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
+            system.close()
+            raise
+        if kept is not None:
+            warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
+        n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
-    def progress(indices):
-        return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
+        def progress(indices):
+            return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
 
-    interrupted = None
-    try:
-        system.run(max_frames=max_frames, progress=progress)
-    except KeyboardInterrupt as interrupt:
-        interrupted = interrupt  # raised again below, once the files are written
-    finally:
-        partial.close()
-        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
-        world_map = system.result.map
-        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name, formats=formats, records=system.result.records,
-                                    cloud=None if world_map is None else map_cloud(world_map),
-                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
-        partial.discard()
+        interrupted = None
+        try:
+            system.run(max_frames=max_frames, progress=progress)
+        except KeyboardInterrupt as interrupt:
+            interrupted = interrupt  # raised again below, once the files are written
+        finally:
+            partial.close()
+            summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
+            world_map = system.result.map
+            written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
+                                        title=sequence.name, formats=formats, records=system.result.records,
+                                        cloud=None if world_map is None else map_cloud(world_map),
+                                        keyframes=None if world_map is None else world_map.keyframe_trajectory())
+            partial.discard()
     if interrupted is not None:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
     return summary
@@ -179,7 +187,7 @@ def overlay_writer(folder: Path, sequence: StereoSequence) -> FrameObserver:
     """
     create_output_folder(folder)
 
-    def write(frame: StereoFrame, tracked: TrackedFrame) -> None:
+    def write(frame: StereoFrame, features: StereoFeatures, tracked: TrackedFrame) -> None:
         if tracked.dynamic is not None:
             path = folder / f"{frame.index:06d}.png"
             write_dynamic_overlay(path, frame.left, tracked.dynamic, sequence.dynamic_mask(frame.index))
