@@ -54,7 +54,7 @@ from pld_slam.io.run_output import (
 )
 from pld_slam.io.trajectory import write_trajectory
 from pld_slam.loop.loop_closing import LoopCandidate
-from pld_slam.report.rerun_recording import open_recording
+from pld_slam.report.rerun_recording import RerunRecording, open_recording
 from pld_slam.run_config import RunConfig, load_run_config
 from pld_slam.system import FrameObserver, FrameRecord, System
 from pld_slam.tracking.tracker import TrackedFrame
@@ -105,8 +105,8 @@ def run_and_write(
     """
     run_config = load_run_config(sequence, config_paths, overrides)
     sequence = with_cameras(sequence, run_config.config.dataset.cameras).scaled(run_config.config.dataset.scale)
-    with locked_output_folder(out):
-        return run_into_locked_folder(sequence, run_config, out, max_frames, save_dynamic, formats, rerun)
+    with nullcontext() if rerun is None else open_recording(rerun, sequence) as recording, locked_output_folder(out):
+        return run_into_locked_folder(sequence, run_config, out, max_frames, save_dynamic, formats, recording)
 
 
 def warn(message: str) -> None:
@@ -129,45 +129,45 @@ def locked_output_folder(out: Path):
 
 def run_into_locked_folder(
     sequence: StereoSequence, run_config: RunConfig, out: Path, max_frames: int | None, save_dynamic: Path | None,
-    formats: tuple[str, ...], rerun: Path | None,
+    formats: tuple[str, ...], recording: RerunRecording | None,
 ) -> dict:
-    """`run_and_write` once ``out`` is locked and ``sequence`` read from its pair and scaled."""
+    """`run_and_write` once ``out`` is locked, ``sequence`` read from its pair and scaled, and the recording
+    (if asked for) open."""
     mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
-    with nullcontext() if rerun is None else open_recording(rerun, sequence) as recording:
-        observers += [] if recording is None else [recording.frame]
-        partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
-        system = System(sequence, run_config.config, observers,
-                        record_observer=lambda record: partial.append(record.timestamp, record.T_w_c),
-                        keyframe_observer=None if recording is None else recording.keyframe)
-        try:
-            kept = prepare_output_folder(out)
-            partial.start()
-        except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
-            system.close()
-            raise
-        if kept is not None:
-            warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
-        n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
+    observers += [] if recording is None else [recording.frame]
+    partial = PartialTrajectory(out / TRAJECTORY_PARTIAL)
+    system = System(sequence, run_config.config, observers,
+                    record_observer=lambda record: partial.append(record.timestamp, record.T_w_c),
+                    keyframe_observer=None if recording is None else recording.keyframe)
+    try:
+        kept = prepare_output_folder(out)
+        partial.start()
+    except BaseException:  # an OutputError, Ctrl-C: end the front-end worker the system started
+        system.close()
+        raise
+    if kept is not None:
+        warn(f"kept the partial trajectory of an earlier run that did not finish as {kept}")
+    n_frames = len(sequence) if max_frames is None else min(max_frames, len(sequence))
 
-        def progress(indices):
-            return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
+    def progress(indices):
+        return tqdm(indices, total=n_frames, desc=sequence.name, unit="frame", disable=None, leave=False)
 
-        interrupted = None
-        try:
-            system.run(max_frames=max_frames, progress=progress)
-        except KeyboardInterrupt as interrupt:
-            interrupted = interrupt  # raised again below, once the files are written
-        finally:
-            partial.close()
-            summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
-            world_map = system.result.map
-            written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                        title=sequence.name, formats=formats, records=system.result.records,
-                                        cloud=None if world_map is None else map_cloud(world_map),
-                                        keyframes=None if world_map is None else world_map.keyframe_trajectory())
-            partial.discard()
+    interrupted = None
+    try:
+        system.run(max_frames=max_frames, progress=progress)
+    except KeyboardInterrupt as interrupt:
+        interrupted = interrupt  # raised again below, once the files are written
+    finally:
+        partial.close()
+        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
+        world_map = system.result.map
+        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
+                                    title=sequence.name, formats=formats, records=system.result.records,
+                                    cloud=None if world_map is None else map_cloud(world_map),
+                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
+        partial.discard()
     if interrupted is not None:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
     return summary
