@@ -166,6 +166,16 @@ RecordObserver = Callable[[FrameRecord], None]
 stream the poses to disk while the run goes)."""
 
 
+def interrupt_behind(error: Exception) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM (`pld_slam.errors.Terminated`) that ``error`` stands for, if any: a signal whose
+    handler raised while a compiled kernel was being called comes back as a ``SystemError`` ("returned a
+    result with an exception set") caused by it."""
+    cause = error.__cause__ or error.__context__
+    while cause is not None and not isinstance(cause, KeyboardInterrupt):
+        cause = cause.__cause__ or cause.__context__
+    return cause
+
+
 class System:
     """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame and then `close`.
 
@@ -334,6 +344,10 @@ class System:
             self.result.stop_reason = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
             raise
         except Exception as error:
+            interrupt = interrupt_behind(error)
+            if interrupt is not None:
+                self.result.stop_reason = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+                raise interrupt from None
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
         finally:

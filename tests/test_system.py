@@ -284,6 +284,28 @@ def test_a_run_stopped_mid_way_reraises_and_keeps_the_frames_before(sequence, co
     assert np.array_equal(tracked_poses(result), tracked_poses(full_run)[:k])
 
 
+def kernel_error_with(interrupt: KeyboardInterrupt) -> SystemError:
+    """What a signal whose handler raised ``interrupt`` during a numba kernel's call comes back as."""
+    try:
+        try:
+            raise interrupt
+        except KeyboardInterrupt as signal_exception:
+            raise SystemError("CPUDispatcher returned a result with an exception set") from signal_exception
+    except SystemError as error:
+        return error
+
+
+@pytest.mark.parametrize(("interrupt", "reason"), [(KeyboardInterrupt(), "interrupted"), (Terminated(), "terminated")])
+def test_a_signal_that_arrives_inside_a_compiled_kernel_stops_the_run_as_the_signal(sequence, config, monkeypatch,
+                                                                                    interrupt, reason):
+    system = System(sequence, config)
+    interrupt_at(system, 3, kernel_error_with(interrupt), monkeypatch)
+    with pytest.raises(type(interrupt)):
+        system.run()
+    assert system.result.stop_reason == reason
+    assert [r.index for r in system.result.records] == [0, 1, 2]
+
+
 def test_the_outputs_of_an_interrupted_run_hold_its_frames_and_say_it_did_not_complete(
         sequence, config, monkeypatch, tmp_path):
     k = 5
