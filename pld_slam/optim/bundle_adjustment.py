@@ -671,8 +671,8 @@ def _held_directions(state: _State, pinned: np.ndarray) -> np.ndarray:
     twin) measures an endpoint's distance to the plane of an observed line; sliding along
     the line changes none of them, and with the planes of nearby views almost parallel an
     endpoint's least-squares point along the line is ill-determined: free, endpoints slide
-    far from a good start (docs/decisions/0011-bundle-adjustment-solver.md). Held, a line keeps the 4 dof of an infinite 3D line and its
-    endpoints their places along it; where a horizontal term measures an endpoint, that
+    far from a good start (docs/decisions/0011-bundle-adjustment-solver.md). Held, a line
+    keeps the 4 dof of an infinite 3D line and its endpoints their places along it; where a horizontal term measures an endpoint, that
     term holds it (`pld_slam.optim.line_reprojection`).
     """
     lines = state.lines_w
