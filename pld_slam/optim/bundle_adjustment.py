@@ -672,8 +672,9 @@ def _held_directions(state: _State, pinned: np.ndarray) -> np.ndarray:
     the line changes none of them, and with the planes of nearby views almost parallel an
     endpoint's least-squares point along the line is ill-determined: free, endpoints slide
     far from a good start (docs/decisions/0011-bundle-adjustment-solver.md). Held, a line
-    keeps the 4 dof of an infinite 3D line and its endpoints their places along it; where a horizontal term measures an endpoint, that
-    term holds it (`pld_slam.optim.line_reprojection`).
+    keeps the 4 dof of an infinite 3D line and its endpoints their places along it; where a
+    horizontal term measures an endpoint, that term holds it
+    (`pld_slam.optim.line_reprojection`).
     """
     lines = state.lines_w
     direction = lines[:, 1] - lines[:, 0]
