@@ -7,9 +7,9 @@ disagrees. Where movers are a small minority that is the static world, and the d
 find the movers. Where they are not, it is not: a bus alongside and a truck ahead driving
 at our speed (synthetic ``convoy``, 30-40 % of the image) say "the camera stands still",
 the fitted pose follows them, and the detectors then mark the static world as moving
-(docs/decisions/0015-static-world-check.md). The paper's detectors take the motion model as their reference; we make that
-explicit here, as a check between the robust solve and the detectors (on whenever a
-detector is):
+(docs/decisions/0015-static-world-check.md). The paper's detectors take the motion model
+as their reference; we make that explicit here, as a check between the robust solve and
+the detectors (on whenever a detector is):
 
 1. When. With a trusted motion model (below), the robust solve lies outside the model's
    expected error; without one, it left at least ``dynamic.rival_min_share`` (15 %) of the
