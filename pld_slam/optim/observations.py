@@ -11,9 +11,10 @@ all residuals are in standard deviations. The paper leaves the covariances open.
   they share the corner's localisation error, and their difference errs several times
   less than either. Treating the three as independent with one sigma gives the disparity
   too large an effective sigma: depth and therefore scale are under-weighted, and local
-  BA drifted in scale (docs/decisions/0018-observation-covariances.md). The rows are therefore whitened as ``u_left / sigma``,
-  ``v / sigma`` and the disparity ``(u_left - u_right) / sigma_d``: the third
-  sigma of `PointObservations.sigma_px` is the disparity's.
+  BA drifted in scale (docs/decisions/0018-observation-covariances.md). The rows are
+  therefore whitened as ``u_left / sigma``, ``v / sigma`` and the disparity
+  ``(u_left - u_right) / sigma_d``: the third sigma of `PointObservations.sigma_px` is the
+  disparity's.
 - Corners: ``sigma = 1.2**octave`` (ORB-SLAM2); disparities ``points.disparity_sigma_px``
   times the same factor.
 - Lines: one sigma per observation for both line terms. A line's vertical term has four
