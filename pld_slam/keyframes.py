@@ -19,24 +19,21 @@ it and ``GGS_ppKF+1`` that of the frame after the keyframe before. It leaves ope
 - ``GGS_pKF`` is the threshold the previous keyframe was selected under, not the value it
   reached. Read as the value reached, the rule ratchets: a keyframe's value overshoots
   the threshold by up to one frame's change, the next threshold starts from there, and
-  on the synthetic loop (360 frames) keyframe gaps grew from 5 to 20-30 frames until the
-  frame cap below decided alone; on KITTI raw 0005 one gap reached 29 frames. With the
-  threshold, the rule telescopes to ``GGS_th = th_0 + 0.4 (GGS_pKF+1 - GGS_KF1+1)``: it
-  keeps the spacing of the first keyframes and adapts it to the rate of change
-  (simulated on the synthetic loop: a keyframe every 3.7 frames in the turns, every 7.2
-  on the straights; KITTI raw 0005, turning at a junction: 3.0 against 5.0).
+  keyframe gaps grow until the frame cap below decides alone. With the threshold, the
+  rule telescopes to ``GGS_th = th_0 + 0.4 (GGS_pKF+1 - GGS_KF1+1)``: it keeps the
+  spacing of the first keyframes and adapts it to the rate of change, denser in turns
+  (docs/decisions/0016-keyframe-selection.md).
 - A keyframe inserted because the frame tracks too few landmarks (``min_tracked_ratio``,
   below) sets ``GGS_pKF`` to its own GGS when that is lower than the threshold: the
   tracking needed a keyframe sooner, so the spacing shrinks. One inserted by the frame
   cap (``max_frames_between``) keeps the threshold: there the view hardly changed, and
   lowering the threshold to the GGS of an unchanging view would make image noise insert
-  keyframes (a camera standing still on EuRoC V1_01 sees GGS 0.05-0.07 between frames).
+  keyframes.
 - Start: the first threshold is ``ggs_initial_steps`` (2) times the GGS of the frame
   after the first keyframe (one frame's change of view); the rule adapts it from the
   second keyframe on. The telescoped rule keeps the spacing of the start, so this sets
-  the density of keyframes: with 3, keyframes on the synthetic street came every 4.3
-  frames and ATE was 0.082 m, with 2 every 3.6 frames and 0.033 m (150 frames, seed 0;
-  a keyframe at every frame: 0.036 m).
+  the density of keyframes: 3 spaced them too far for local BA on the synthetic street
+  (docs/decisions/0016-keyframe-selection.md).
 
 Safety rules, which the paper does not state, apply under either policy:
 
@@ -45,15 +42,14 @@ Safety rules, which the paper does not state, apply under either policy:
 - ``min_tracked_ratio``: a keyframe when the frame tracks fewer map landmarks than this
   share (50 %) of those its reference keyframe holds. Local BA can only correct
   keyframes through the landmarks they share: at ORB-SLAM2's 25 % (its emergency rule;
-  its main stereo rule asks for 75 %), keyframes 10 frames apart on the synthetic street
-  shared 43 landmarks and local BA moved poses tracked to 2 cm by 13 cm.
+  its main stereo rule asks for 75 %), keyframes shared too few for local BA to keep well
+  tracked poses where they were (docs/decisions/0016-keyframe-selection.md).
 
 ORB-SLAM2's third stereo rule (a keyframe when fewer than 100 near map points are
 tracked while 70 near stereo points have none) is left out: our map tracking finds about
-a quarter of the near points a frame later (80-100 of 330 on KITTI 06), so it fired at
-every frame, and a keyframe per frame bought no accuracy over the rules above (synthetic
-street 0.036 m against 0.033 m; KITTI 06 Sim(3) ATE 0.024 m both) at three times the
-mapping cost.
+a quarter of the near points a frame later, so it fired at every frame, and a keyframe
+per frame bought no accuracy over the rules above at three times the mapping cost
+(docs/decisions/0016-keyframe-selection.md).
 
 ``policy: tracked_ratio`` replaces the GGS rule by ORB-SLAM2's: a keyframe whenever the
 frame tracks fewer than ``tracked_ratio`` (90 %) of its reference keyframe's landmarks.

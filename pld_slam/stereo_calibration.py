@@ -5,12 +5,8 @@ difference of the two images' principal points, ``cx_left - cx_right``. Calibrat
 state it (KITTI's and `cv2.stereoRectify`'s right projection matrix may carry its own
 ``cx``), but a rig's calibration is not exact, and a residual offset of a fraction of a
 pixel biases every depth by ``offset / d``: the same sign for every point, so the whole
-trajectory comes out too long or too short. On KITTI 06 (frames 0-50), the ground-truth
-motion agrees with our stereo depths only for an offset of -0.15 px: fitted jointly with a
-scale on ``bf``, the offset came out at -0.146 px and the scale at 0.999; SGBM's
-disparities agree with ours to 0.03 px, so the offset is in the images, not in our
-matcher. Uncorrected, it made our KITTI 06 trajectory 1.1 % too long (ATE 0.19 m, 0.024 m
-after a similarity alignment).
+trajectory comes out too long or too short (KITTI 06's uncorrected trajectory is about
+1 % long: docs/decisions/0006-disparity-offset-self-calibration.md).
 
 The offset is observable without ground truth, because an offset and a depth error are
 not the same thing for a moving camera: the image flow of a static point between two
@@ -23,22 +19,17 @@ each (`estimate_disparity_offset`):
    later frames a gap ``g`` apart; pairs (a, a+g), (a+g, a+2g) and (a, a+2g). Spread,
    because a run may start standing still (no motion: no information) and one stretch
    may be untextured. No two anchors share a frame, and fewer than
-   ``calibration.min_anchors`` (6) anchors with a pair pose give no estimate: an 8-frame
-   synthetic street, whose 12 anchors shared frames, gave -0.31 px at "4 deviations" for
-   a true 0. Unreadable frames are left out. The gap (`frame_gap`) makes the camera move
-   about ``calibration.pair_motion_baselines`` (5) stereo baselines between an anchor's
-   frames, judged from the median motion of a few pairs of consecutive frames: KITTI
-   (1.2 m per frame, 0.54 m baseline) gets 2, the synthetic streets (0.8 m, 0.5 m) 3.
-   Between frames close together a point's sub-pixel disparity error repeats, and the
-   profile reads it as an offset (below); a wider gap changes the point's disparity, and
-   with it its error, and gives the offset more depth change to act on. The gap is never
-   below ``calibration.min_frame_gap`` (2), however fast the camera: consecutive frames
-   mislead even with the true motion. With the ground-truth poses instead of the pair
-   poses (`benchmarks/stereo_depth.py`), consecutive frames of a synthetic highway
-   (exact rig, KITTI camera, 2.2 m per frame) gave +0.166 +- 0.056 px, frames 2 and 3
-   apart -0.005 and +0.013; on KITTI 04, +0.003 against -0.141 and -0.108. At gap 1
-   the highway's own estimate was -0.276 px at 3.5 deviations, used: ATE 0.12 -> 1.92 m.
-   At gap 2 too few of its pairs match, and the calibration stays.
+   ``calibration.min_anchors`` (6) anchors with a pair pose give no estimate (anchors
+   sharing frames gave a confident wrong estimate). Unreadable frames are left out. The
+   gap (`frame_gap`) makes the camera move about ``calibration.pair_motion_baselines``
+   (5) stereo baselines between an anchor's frames, judged from the median motion of a
+   few pairs of consecutive frames: KITTI (1.2 m per frame, 0.54 m baseline) gets 2, the
+   synthetic streets (0.8 m, 0.5 m) 3. Between frames close together a point's sub-pixel
+   disparity error repeats, and the profile reads it as an offset (below); a wider gap
+   changes the point's disparity, and with it its error, and gives the offset more depth
+   change to act on. The gap is never below ``calibration.min_frame_gap`` (2), however
+   fast the camera: consecutive frames mislead even with the true motion
+   (docs/decisions/0006-disparity-offset-self-calibration.md).
 2. Each pair's stereo points are matched by descriptor (`pair_matches`). At the current
    offset, its relative pose is found by stereo PnP RANSAC on the first frame's 3D points
    (`pnp_pose`) and refined by the pose-only solver, which also picks the inliers
@@ -49,9 +40,8 @@ each (`estimate_disparity_offset`):
    and the whitened squared errors summed over all pairs. A Newton step on this profile
    (`profile_minimum`) moves the offset to its minimum inside
    ``[-calibration.max_offset_px, +calibration.max_offset_px]``; steps 2 and 3 repeat
-   from there until the offset moves by less than 0.005 px (`GATING_ROUNDS` at most).
-   Inliers picked at a wrong offset favour matches that the wrong offset explains: on a
-   synthetic street whose right images were shifted by 0.4 px, one round found 0.23 px.
+   from there until the offset moves by less than 0.005 px (`GATING_ROUNDS` at most):
+   inliers picked at a wrong offset favour matches that the wrong offset explains.
 4. Its standard deviation: for whitened errors the profile is ``C0 + kappa (delta -
    offset)^2 / 2`` near the minimum and the offset's variance ``1 / kappa``, times the
    residual variance ``2 C0 / (n_rows - n_unknowns)`` where that exceeds 1 (the assumed
@@ -59,9 +49,7 @@ each (`estimate_disparity_offset`):
    about the offset). That deviation assumes independent errors; they are not (a point's
    sub-pixel error repeats in every frame, and on real images the offset may vary over
    the image), so the deviation used is the larger of it and the standard error of the
-   anchors' own minima about the pooled one (`_spread_over_anchors`). On KITTI 06 with
-   consecutive frames (gap 1) the first was 0.020 px, the second 0.074 px; on synthetic
-   streets 0.025 and 0.032-0.038 px. At the gap of step 1, KITTI 06's is 0.045 px.
+   anchors' own minima about the pooled one (`_spread_over_anchors`).
 5. The estimate is used only when the minimum is not at the bound and its deviation is
    under ``calibration.max_sigma_px``. What is applied then depends on what is known of
    the rig. With ``calibration.prior_sigma_px`` 0 (the default) the estimate must lie
@@ -73,48 +61,27 @@ each (`estimate_disparity_offset`):
    -0.09 and -0.15 px), the KITTI family file sets a prior spread of 0.15 px and no test:
    the applied offset is the posterior mean ``estimate * prior**2 / (prior**2 + sigma**2)``.
    The paper does not calibrate; we shrink rather than test on KITTI because the test
-   applies all or nothing: KITTI 04's estimate (-0.126 +- 0.056 px, 2.25 deviations) failed
-   it and the run kept a path 0.9 % long (ATE 0.168 m); shrunk, -0.111 px is applied (ATE
-   0.044 m). We do not shrink everywhere because the estimate is not reliable enough to be
-   applied without a test on a rig that has no offset: on exact synthetic rigs it is off
-   by up to 0.05 px, and by +0.09 to +0.19 px on low-texture streets
-   (``benchmarks/decisions/stereo_scale.md``, "Shrinking the estimate").
+   applies all or nothing, and we do not shrink everywhere because on exact synthetic
+   rigs the estimate is off by a few hundredths of a pixel, more on low texture
+   (docs/decisions/0006-disparity-offset-self-calibration.md;
+   ``docs/decisions/0001-stereo-scale.md``, "Shrinking the estimate").
 
-How wrong the estimate can be. Synthetic streets are rendered with an exact rig (true
-offset 0; 640 x 480, ``bf`` 192 px m, 150 frames). Their family file switches the estimate
-off, but run on them it gives, for the ``static`` scenario's seeds 0-5 at gap 3, -0.051,
--0.030, +0.012, -0.000, +0.114 and +0.085 px (1.4, 0.7, 0.2, 0.0, 3.0 and 2.1 deviations):
-seed 4 passes the test. The bias comes from the measured disparities, not from the flow:
-they are unbiased on average (+0.01 px against the truth), but a point's sub-pixel error
-repeats between nearby frames, and the profile reads that as an offset, mostly through
-far points. With the renderer's true disparities in both frames of every pair, the mean
-went to +0.01-0.02 px. Hence the gap. With consecutive frames (gap 1, before the gap
-was chosen from the motion) the same seeds gave +0.146, +0.073, +0.036, +0.127, +0.115
-and +0.027 px (seeds 0 and 3 passed: ATE 0.039 -> 0.566 m and 0.049 -> 0.448 m), and
-KITTI 06 -0.197 px at 2.65 deviations, just inside the test; its copy from frame 10
-fell outside it (-0.153 px, 2.1; ATE 0.143 m). Gap 2 still left the synthetic seeds a
-bias of +0.035 px. A stricter test (3.2 deviations) at gap 1 would have kept the streets
-at 0 but dropped KITTI 06's correction; weighting the pair poses' disparities less was
-tried too and not kept. A user whose rig is well calibrated loses nothing by
+How wrong the estimate can be: on synthetic streets rendered with an exact rig (true
+offset 0; their family file switches the estimate off) it is biased by a point's
+sub-pixel disparity error repeating between nearby frames, mostly through far points;
+a seed can pass the test. A user whose rig is well calibrated loses nothing by
 ``calibration.disparity_offset: false``.
 
 The paper does not calibrate; it assumes the rig's calibration. We do because the offset
-was the largest error on our real KITTI extracts. It costs 2-4 s per run (the stereo
-points of the probe pairs' 12 frames and of up to 36 anchor frames, then per round up to
-36 pair poses and three profile costs; KITTI 06: 3.2 s). Points only: lines would add
-little information on one number and cost time.
+was the largest error on our real KITTI extracts. It costs a few seconds per run (the
+stereo points of the probe pairs' 12 frames and of up to 36 anchor frames, then per round
+up to 36 pair poses and three profile costs). Points only: lines would add little
+information on one number and cost time.
 
-Why not in bundle adjustment. The offset can be one more unknown of BA (every row's
-derivative is minus its ``u_right`` weight) with a deviation from the Schur complement;
-it was tried as a global BA over a finished run's map (not kept). On KITTI 06, at the
-offset found here, it moved the offset by +0.043 px (deviation 0.009) and the ATE from
-0.030 to 0.025 m, but only with a stopping tolerance 1,000 times tighter than local BA's,
-since the cost barely changes along the offset. Over the map of a run tracked at the
-wrong offset (KITTI 06 from frame 10, at 0) it stopped at -0.06 px instead of about
--0.15: the map had already absorbed the error. And on KITTI raw 0005 it found +0.24 px at
-6.6 deviations, while runs forced to -0.1 and -0.2 px gave 0.079 and 0.078 m against
-0.086 at 0 and 0.100 at +0.1: BA fits the offset to whatever else is wrong in the map
-(movers, a drifting scale), so its tight deviation is not to be trusted.
+Not in bundle adjustment: the offset can be one more unknown of BA (every row's derivative
+is minus its ``u_right`` weight), but the cost barely changes along the offset, a map
+tracked at the wrong offset has already absorbed the error, and BA fits the offset to
+whatever else is wrong in the map (docs/decisions/0006-disparity-offset-self-calibration.md).
 """
 
 import dataclasses
@@ -136,8 +103,8 @@ from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose, optimize_po
 PROFILE_STEP_PX = 0.05
 """Offset step [px] of the finite differences that give the profile's slope and curvature."""
 PAIR_POSE_OPTIONS = PoseOnlyOptions(rounds=2, robust_rounds=1)
-"""A pair's pose: one robust solve from the PnP pose, one on its inliers. The tracker's four
-rounds cost 0.8 s more on KITTI 06 and moved the estimate by 0.018 px, within its sigma."""
+"""A pair's pose: one robust solve from the PnP pose, one on its inliers (the tracker's four
+rounds cost more and move the estimate within its sigma: docs/decisions/0006-disparity-offset-self-calibration.md)."""
 GATING_ROUNDS = 4
 """Most rounds of choosing the pairs' inliers at the current offset and stepping to the
 profile's minimum (module docstring, steps 2-3)."""

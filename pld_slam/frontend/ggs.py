@@ -7,7 +7,7 @@ Two frames are compared by
     sim_v = 1 / (M N) * sum_{i=1..12} min_{p, q in {0, 1}} || hist_a(p, i) - hist_b(q, i) ||
 
 with ``p, q`` choosing the original (0) or the scaled copy (1). What it leaves open, and
-what we do:
+what we do (the measurements: docs/decisions/0009-ggs-descriptor.md):
 
 The scaled copy. Shrinking the whole image by 0.8 and cutting it into the same 3 x 4 grid
 puts the same content into every cell: the histograms would only differ by resampling,
@@ -29,59 +29,44 @@ The minimum. The paper's equation takes it inside the sum, per cell: each cell m
 its own pairing. We follow it (`ggs_distances`).
 
 Light (``ggs.place_ranks``, not in the paper). A grey histogram moves with the exposure
-and the light: on the synthetic ``loop2`` (two laps, the second under another sun and
-exposure), of 31 second-lap frames the nearest of the first lap's 300 frames by the
-paper's GGS was the same place (within 3 m) for 1, 1 and 4 (seeds 0-2), and the true
-place ranked 39th, 70th and 55th. Histograms of the grey levels' *ranks* in the image
-do not move with any monotonic change of the grey levels (exposure, gain, gamma): grey
-level ``g`` stands for the ranks ``[F(g - 1), F(g))`` of the image's cumulative
-histogram ``F``, its pixels spread evenly over them (`rank_histograms`), and the
-ranks are cut into ``bins`` equal bins (``ranks=True``). A new sun direction, which
-brightens some surfaces and darkens others, still moves them, but less: by ranks alone
-the same place came first for 10, 10 and 8 frames and ranked 5th, 11th and 17th. But
-ranks alone lose what brightness says: on EuRoC's ``V1_01_easy_loop_pairs`` a frame
-3.5 m away came out closer (0.722) than the revisit 0.45 m away (0.815). Place
+and the light: across a change of sun and exposure the paper's GGS rarely finds the same
+place. Histograms of the grey levels' *ranks* in the image do not move with any
+monotonic change of the grey levels (exposure, gain, gamma): grey level ``g`` stands for
+the ranks ``[F(g - 1), F(g))`` of the image's cumulative histogram ``F``, its pixels
+spread evenly over them (`rank_histograms`), and the ranks are cut into ``bins`` equal
+bins (``ranks=True``). A new sun direction, which brightens some surfaces and darkens
+others, still moves them, but less. But ranks alone lose what brightness says. Place
 recognition therefore compares both: its descriptor holds the grey cells and then as
-many cells of ranks (`ggs_and_place_descriptors`), so that its ``sim_v`` is the mean
-of the two distances. On ``loop2`` the same place then came first for 12, 11 and 11
-frames and ranked 3rd, 4th and 6th; on EuRoC the revisit is first again (0.879, the
-next pair 0.946). The keyframe rule keeps the paper's grey levels: it compares consecutive
-frames, which share their light, and with ranks KITTI 06 made a keyframe of 48 of its
-51 frames (32 with grey levels) and KITTI raw 0005 came out at 0.097 m against 0.086.
-Histogram equalisation (``cv2.equalizeHist``) would not do: it maps each grey level to
-one level, leaving a comb of empty bins that moves with any small change of ``F`` (a
-copy shifted by 3 px came out at 0.57 instead of 0.01, the next KITTI frame at 0.66);
-spreading each level over its ranks avoids the comb. The zoomed copy is ranked within
-itself, so that it matches the original of a frame taken closer.
+many cells of ranks (`ggs_and_place_descriptors`), so that its ``sim_v`` is the mean of
+the two distances. The keyframe rule keeps the paper's grey levels: it compares
+consecutive frames, which share their light, and with ranks nearly every KITTI frame
+became a keyframe. Histogram equalisation (``cv2.equalizeHist``) would not do: it maps
+each grey level to one level, leaving a comb of empty bins that moves with any small
+change of ``F``; spreading each level over its ranks avoids the comb. The zoomed copy is
+ranked within itself, so that it matches the original of a frame taken closer
+(docs/decisions/0009-ggs-descriptor.md).
 
 Storage. A frame's GGS is one compact ``(2, cells, bins)`` uint8 array (6 KB at 3 x 4 x
 256): each normalised histogram in units of ``1 / HISTOGRAM_QUANTA`` of its cell,
-rounded, saturating at 255 (``255 / 400`` = 64 % of a cell in one grey level; on the
-real extracts, 99 % of the cells have no bin above 57 %). Rounding changes a distance by
-a small amount; `tests/test_ggs.py` bounds it against the exact float value (over all
-pairs of the 150 real frames of the extracts: mean +0.005, 99 % within 0.027, all within
-0.042). It can push a distance past 2 where many bins round the same way: a cell spread
-evenly over 112 grey levels stores 4 quanta per level (448 in all), and two such images
-with disjoint grey levels are at 2.24. Histograms of ranks are flat, 1.6 quanta per bin
-on average, and round more: over the 1,035 pairs of 46 frames taken from all the
-extracts, mean +0.008, 99 % within 0.037, all within 0.056 (grey levels: +0.005, 0.026
-and 0.036 on the same pairs). A keyframe keeps both descriptors: 6 KB for the keyframe
-rule, 12 KB (grey and rank cells) for place recognition.
+rounded, saturating at 255 (``255 / 400`` = 64 % of a cell in one grey level, more than
+real cells hold). Rounding changes a distance by a small amount; `tests/test_ggs.py`
+bounds it against the exact float value. It can push a distance past 2 where many bins
+round the same way: a cell spread evenly over 112 grey levels stores 4 quanta per level
+(448 in all), and two such images with disjoint grey levels are at 2.24. Histograms of
+ranks are flat, about 1.6 quanta per bin, and round more. A keyframe keeps both
+descriptors: 6 KB for the keyframe rule, 12 KB (grey and rank cells) for place
+recognition.
 
 Speed (targets: under 2 ms per KITTI frame, under 1 ms for a query against 1,000
-keyframes; minimum over repeats of `benchmarks/ggs_speed.py` on the 2-core development
-machine, since other processes only add time). A descriptor of a 1226 x 370 frame takes
-0.5 ms (24 ``cv2.calcHist`` calls), both of `ggs_and_place_descriptors` 0.8 ms (from the
-same counts: computing the ranks' own took 1.4 ms). A query
-reads every stored byte once, in a numba kernel that sums the four pairings of a cell in
-one pass on 16-bit lanes: 0.34 ms against 1,000 keyframes, 7.4 ms against 10,000 (numpy,
-which cannot fuse the four pairings nor sum uint8 without widening, took 7.7 ms and 177
-ms; ``cv2.absdiff`` + ``cv2.reduce`` 5.4 ms for 1,000); place descriptors, twice the
-cells, 0.68 and 11.1 ms. The distances are the same to the last bit: the per-cell sums are exact
-integers either way, and the mean over cells is the same float64 operation. `GgsDatabase`
-keeps the keyframes stacked, so that a query does not first copy them (``np.stack`` of
-1,000 descriptors: 0.7 ms). Compiling the kernel takes 1 s, once per machine: it is
-cached in a user cache folder (`pld_slam.jit`).
+keyframes; `benchmarks/ggs_speed.py` measures them). A descriptor is 24
+``cv2.calcHist`` calls; `ggs_and_place_descriptors` makes both from the same counts. A
+query reads every stored byte once, in a numba kernel that sums the four pairings of a
+cell in one pass on 16-bit lanes (numpy cannot fuse the four pairings nor sum uint8
+without widening). The distances are the same to the last bit: the per-cell sums are
+exact integers either way, and the mean over cells is the same float64 operation.
+`GgsDatabase` keeps the keyframes stacked, so that a query does not first copy them.
+The kernel is compiled once per machine and cached in a user cache folder
+(`pld_slam.jit`).
 """
 
 import cv2

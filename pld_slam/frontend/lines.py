@@ -1,43 +1,31 @@
 """Line segments of a rectified stereo pair: detection, LBD descriptors, stereo matching.
 
 The paper says "LSD" and defers the rest to DynPL-SVO, which follows PL-SLAM's stereo
-line matching. Where they are silent we decide as follows (numbers: KITTI 06, checked
-against SGBM disparities sampled along each line on six frames):
+line matching. Where they are silent we decide as follows (the measurements, on KITTI 06
+against SGBM disparities sampled along each line: docs/decisions/0017-stereo-lines.md):
 
 - Detection: OpenCV's LSD (standard refinement) on the image scaled by
-  ``detection_scale`` = 0.5 (OpenCV's default is 0.8): 11 ms instead of 27 ms per KITTI
-  image, as many long segments, for a median disparity error of 0.30 px instead of
-  0.22 px. OpenCV's LSD puts scaled-image points 0.5 px up and left at scale 0.5; they
-  are moved back. Segments shorter than ``min_length`` (1.5 % of the image diagonal:
-  19 px on KITTI) are dropped.
-- ``lines.detector`` offers two cheaper detectors on the same half image (single thread,
-  per KITTI image): FastLineDetector 5.1 ms and EDLines (EdgeDrawing) 3.0 ms against
-  LSD's 13.5 ms (LBD adds about 6.5 ms to each). Both fit their segments to edge pixels
-  of the half image, whole pixels there, so their kept segments are moved onto the
-  sub-pixel gradient maximum of the full image (`refined_to_edges`, 1.5 ms for KITTI's
-  ~120 segments): on rendered squares their median endpoint disparity error went from
-  0.39 / 0.49 px to 0.06 px, LSD's figure. Mapping on, synthetic seeds 0-2 (150 frames),
-  mean ATE of EDLines before and after the refinement, FLD after, and LSD: static 0.044 /
-  0.038, 0.037 against 0.032 m; dynamic 0.069 / 0.052, 0.054 against 0.057; low texture
-  0.106 / 0.083, 0.076 against 0.090. KITTI 06: EDLines 0.029 / 0.030, FLD 0.026 against
-  LSD's 0.031 m; raw 0005: 0.083 / 0.085, 0.090 against 0.086; line inliers per KITTI 06
-  frame 20 (EDLines) against 30. They save about 20 ms of front-end CPU per KITTI frame,
-  but a KITTI 06 run is only about 4 % faster (mean 104-105 against 109-113 ms per frame;
-  unrefined EDLines: 99): the front end runs beside tracking and mapping, which set the
-  pace, and the refined lines are matched more often. LSD stays the default: the paper's
-  detector, the best on the synthetic static street, and on the KITTI extracts started at
-  frames 10 and 25 or with every second frame dropped EDLines was worse in four of the six
-  runs (by 2-16 %), level in one and better in one (raw 0005 from frame 10, by 15 %).
+  ``detection_scale`` = 0.5 (OpenCV's default is 0.8): less than half the time per KITTI
+  image, as many long segments, for a slightly larger disparity error. OpenCV's LSD puts
+  scaled-image points 0.5 px up and left at scale 0.5; they are moved back. Segments
+  shorter than ``min_length`` (1.5 % of the image diagonal: 19 px on KITTI) are dropped.
+- ``lines.detector`` offers two cheaper detectors on the same half image:
+  FastLineDetector and EDLines (EdgeDrawing). Both fit their segments to edge pixels of
+  the half image, whole pixels there, so their kept segments are moved onto the
+  sub-pixel gradient maximum of the full image (`refined_to_edges`), which brings their
+  endpoint disparity error to LSD's. They save front-end CPU, but a run is hardly faster
+  (the front end runs beside tracking and mapping, which set the pace). LSD stays the
+  default: the paper's detector, and the cheaper ones are not better on every sequence
+  (docs/decisions/0017-stereo-lines.md; docs/decisions/0002-front-end-speed.md).
 - Segments closer to horizontal than ``min_angle_from_horizontal`` (15 deg) are dropped at
   detection: their disparity is ill-posed, since a lateral error ``e`` of the right
   segment moves its crossing with a left endpoint's row by ``e / sin(angle)`` (3.9 e at
-  15 deg). Lines wrong by more than 2 px went from 4.4 % at 10 deg to 2.5 % at 15 deg
-  for 4 % fewer lines. A line without depth is of no use to this stereo system, and
-  dropping them before the cap and before LBD saves time.
+  15 deg). A line without depth is of no use to this stereo system, and dropping them
+  before the cap and before LBD saves time.
 - The ``max_lines`` longest remaining segments are kept (long segments are the most
   repeatable and the best conditioned), then described by LBD (OpenCV's
   ``BinaryDescriptor.compute``, 32 bytes) on KeyLines built from the LSD segments.
-  OpenCV's ``LSDDetector`` + LBD measured slower (41 ms for the detection alone).
+  OpenCV's ``LSDDetector`` + LBD measured slower.
 - Stereo matching, as PL-SLAM: candidates are right segments whose oriented direction
   (LSD orients a segment by its gradient, so polarity must agree too) is within
   ``stereo_max_angle_difference``, whose row range shares at least

@@ -2,7 +2,8 @@
 
 The paper says "ORB" and "the local matching scheme of DynPL-SVO" (left-right candidates
 restricted to a local region) and nothing more. We follow ORB-SLAM2's stereo front end,
-which that scheme amounts to on rectified images, and decide what neither fixes:
+which that scheme amounts to on rectified images, and decide what neither fixes (the
+measurements behind each choice: docs/decisions/0012-orb-stereo-points.md):
 
 - Detection: OpenCV's ORB (FAST threshold 20, 8 levels, scale 1.2, as ORB-SLAM2) asked for
   ``oversampling * n_features`` corners, then bucketed: the image is cut into square cells
@@ -11,47 +12,34 @@ which that scheme amounts to on rectified images, and decide what neither fixes:
   no cell holds more than one corner above the last round reached, and textured areas
   cannot starve the rest of the image. ORB-SLAM2 gets the same effect with per-cell FAST
   and a quadtree; from Python, per-cell detection costs one OpenCV call per cell, so we
-  detect once and oversample. On KITTI, plain ORB's 2,000 strongest corners touch 22 %
-  of the 32 px cells, the bucketed ones 43 %. Before bucketing, only the strongest corner
-  of each ``min_separation_px`` cell is kept: OpenCV finds a strong corner again at
-  several octaves, and the round-robin would take those copies as a cell's second and
-  third corners. On KITTI raw 0005 the copies stacked 3-5 points on each corner of a
-  near van, which then outweighed the static scene in the pose (ATE 0.40 m).
+  detect once and oversample. Before bucketing, only the strongest corner of each
+  ``min_separation_px`` cell is kept: OpenCV finds a strong corner again at several
+  octaves, and the round-robin would take those copies as a cell's second and third
+  corners, stacking points on one corner of a near vehicle.
 - Keypoint pixels: OpenCV reports a corner found at pixel ``x_l`` of level ``l`` at
   ``x_l * s`` (``s = scale_factor^l``), as ORB-SLAM2 uses it. That level pixel's centre
   lies at ``(x_l + 0.5) W / W_l - 0.5`` of the image (`cv2.resize` aligns pixel centres;
   ``W_l = round(W / s)``): 0.1 px away at level 1, 1.3 px at level 7, plus the rounding
   of ``W_l``. The offset cancels between two observations at one level, not when a
-  corner changes level as the camera nears it. Corrected (measured, not kept), matches
-  that changed level on a synthetic street lost most of their bias (level 3 to 4: from
-  (+0.74, -0.80) to (+0.11, -0.04) px, against the renderer's truth), and the streets'
-  trajectories their 0.06 % shortfall; but the runs were no better: mapping on, seeds
-  3-5, static 0.066 -> 0.065 m, dynamic 0.186 -> 0.203, low texture 0.112 -> 0.167 (now
-  0.2 % too long), KITTI raw 0005 0.088 -> 0.097; the synthetic loop closed by GGS
-  (seeds 0-5) 0.063 -> 0.056. The low-texture street's corners are mostly junctions of
-  a near edge and the background, which slide outward along the edge as the camera
-  nears. Dropping stereo matches whose SAD window straddles a depth edge (the best shifts
-  of the window's left and right halves differ by more than one level pixel) kept its
-  path length right (ratio 1.0005-1.0009) but not the runs better either, over seeds 0-5
-  against OpenCV's pixels: static 0.064 -> 0.070 m, dynamic 0.160 -> 0.142, low texture
-  0.119 -> 0.129; KITTI 06 0.033 -> 0.035, raw 0005 0.088 -> 0.102. We keep OpenCV's
-  pixels: at these seeds' 2x spread the bias is not what limits the ATE.
+  corner changes level as the camera nears it. We keep OpenCV's pixels: corrected, and
+  with stereo matches straddling a depth edge dropped, the bias went but the runs were
+  no better (the bias is not what limits the ATE).
 - Stereo candidates: right keypoints at the same or a neighbouring octave, within
   ``stereo_row_tolerance * scale^octave`` rows, with a disparity inside the depth limits.
 - Matching: the smallest Hamming distance under ``stereo_max_distance`` (64; ORB-SLAM2
   uses 75), a ratio test (0.8) against the best rival more than one octave pixel away
   along the row, then each right keypoint is kept by its closest left keypoint only.
-  ORB-SLAM2 has neither of the last two; checked against SGBM disparities on six KITTI
-  06 frames, they cut the wrong matches from 14 % to 9 % for a quarter fewer right
-  ones. The ratio test only sees keypoints that both images kept: a repeated pattern
-  whose true counterpart was not kept on the right can still match a copy.
+  ORB-SLAM2 has neither of the last two; against SGBM disparities they cut the wrong
+  matches for fewer right ones. The ratio test only sees keypoints that both images
+  kept: a repeated pattern whose true counterpart was not kept on the right can still
+  match a copy.
 - Sub-pixel disparity: as ORB-SLAM2, a SAD search of an 11 x 11 window along the row at
   the keypoint's octave, +- 5 columns, and a parabola through the three SAD values around
   the minimum. We subtract each window's mean (ORB-SLAM2 subtracts the centre pixel),
   which cancels a brightness offset between the cameras with less noise. A minimum at
   either end of the search is no match. ORB-SLAM2's second filter (SAD above 2.1 times
-  the median) is left out: on KITTI it dropped 13 % of the matches to remove a third of
-  the 3.5 % that disagree with SGBM.
+  the median) is left out: on KITTI it dropped many matches to remove few that disagree
+  with SGBM.
 - Depth limits: ``fx / max_depth_baselines <= disparity <= fx / min_depth_baselines``.
   ORB-SLAM2 accepts 1 to infinitely many baselines and labels points beyond 35-40
   baselines "far". We keep far points, which fix rotation, up to 200 baselines (3.5 px
@@ -61,10 +49,10 @@ which that scheme amounts to on rectified images, and decide what neither fixes:
 Stereo points (`StereoPoints`) are the ones with a depth: tracking against the reference
 frame, the dynamic detectors and new map points start from them. The map also needs
 the others: a map point is found again in a later frame wherever its corner is detected
-in the left image, stereo-matched there or not (on KITTI about 600 of the 2,000 left
-corners have a stereo match; ORB-SLAM2 likewise tracks map points in keypoints without
-one, as monocular observations). `LeftKeypoints` holds every left keypoint, the stereo
-points first.
+in the left image, stereo-matched there or not (on KITTI most left corners have no
+stereo match; ORB-SLAM2 likewise tracks map points in keypoints without one, as
+monocular observations). `LeftKeypoints` holds every left keypoint, the stereo points
+first.
 """
 
 from collections.abc import Sequence
@@ -346,10 +334,9 @@ def sad_along_row(
     inside : (K,) bool
         Which keypoints those are.
 
-    One numba kernel (`_mean_free_sad`) computes every window in float64. It replaced numpy
-    on (K', shifts, pixels) float32 arrays: 800 windows of 11 x 11 px at 11 shifts took 3.4
-    against 8.3 ms, the front end 57 against 60 ms per KITTI 06 frame (run alone), with the
-    same trajectories (SAD within 0.002 of 12,000; the same minima).
+    One numba kernel (`_mean_free_sad`) computes every window in float64 (faster than numpy on
+    (K', shifts, pixels) float32 arrays, with the same minima:
+    docs/decisions/0012-orb-stereo-points.md).
     """
     height, width = left_level.shape
     reach = half_window + radius

@@ -15,36 +15,32 @@ GGS) is accepted only when it passes every test here, cheapest first:
    point and line inliers. Stereo has metric scale: the loop constraint is the SE(3) pose
    found, ``T_c_w`` of the current keyframe in the candidate's part of the map.
 
-   Cost. Nearly every candidate fails here (a detector proposes 2-3 per keyframe; on the
-   synthetic block 8 of 368 checks found a pose), so the check must fail cheaply. PnP
-   runs only on at least ``loop.min_inliers`` descriptor matches, the inliers the check
-   needs in the end: a RANSAC that cannot find a pose runs all its iterations (14 ms),
-   and on the synthetic ``loop`` (seed 0) every check that found a pose had 77-110
-   matches to the candidate, the failures a median of 46. And the descriptor matching
-   (brute force, no vocabulary with GGS) takes the candidate's ~350 landmarks rather than
-   its neighbourhood's ~2,000: 4 ms instead of 14, with as many poses found (10 against
-   8); the neighbourhood still serves the tracking from the pose found.
+   Cost. Nearly every candidate fails here (a detector proposes 2-3 per keyframe), so
+   the check must fail cheaply. PnP runs only on at least ``loop.min_inliers``
+   descriptor matches, the inliers the check needs in the end: a RANSAC that cannot find
+   a pose runs all its iterations, and checks that find a pose have many more matches.
+   And the descriptor matching (brute force, no vocabulary with GGS) takes the
+   candidate's own landmarks rather than its neighbourhood's, several times fewer, with
+   as many poses found; the neighbourhood still serves the tracking from the pose found
+   (docs/decisions/0014-loop-verification.md).
 2. Drift gate (not in the paper): the correction the loop makes to the current keyframe
    (from its tracked pose to the pose found) must be one that drift could have caused
    since the candidate: at most ``loop.max_drift_ratio`` (3 %) of the keyframes' path
    between them plus 1 m, and ``loop.max_drift_deg`` (20 deg). Our tracking drifts by
-   about 1 % of the path on KITTI 06 (path ratio 1.01) and 0.1-0.2 % on the synthetic
-   block (end error 0.34-0.48 m after 305 m), so a true loop passes with a 3x margin; an
-   aliased match does not: on the synthetic block, whose facades repeat their textures,
-   the geometric check once placed a keyframe on a facade seen 25 m earlier with 117
-   inliers of 119, a "correction" of 23 m and 61 deg, and (seed 2) one facade period
-   along the street, 85 inliers of 97, a 12.2 m correction with 0.3 deg of rotation,
-   9.4 m from the true place: 10 % let it through and bent the map (ATE 2.8 m).
+   about 1 % of the path or less, so a true loop passes with a margin; an aliased match
+   (a repeated facade, matched with nearly all inliers) makes a correction of metres or
+   tens of degrees, and a looser gate let one through and bent the map
+   (docs/decisions/0014-loop-verification.md).
 3. Same place (not in the paper): the current keyframe, where the check places it, and
    the candidate must see the scene from the same place: camera centres at most
    ``loop.max_distance_m`` (3 m) apart and optical axes within ``loop.max_view_angle_deg``
    (30 deg), the definition of a true loop the benchmarks score against. A forward
-   camera recognises a place from well before it gets there: on the synthetic block the
-   loop closed 8.5 m before the start (frame 351 to frame 2), a detection that place
-   recognition benchmarks count as false, and a pose-graph edge measured across 8.5 m
-   of PnP. Closing it a few keyframes later, at the place itself, costs nothing: until
-   the loop is closed the current side shares no landmark with the old one, so the old
-   keyframes stay candidates.
+   camera recognises a place from well before it gets there: a loop closed metres before
+   the place is a detection that place recognition benchmarks count as false, and a
+   pose-graph edge measured across metres of PnP (docs/decisions/0014-loop-verification.md).
+   Closing it a few keyframes later, at the place itself, costs nothing: until the loop is
+   closed the current side shares no landmark with the old one, so the old keyframes stay
+   candidates.
 4. ``lc_rat`` (the paper's first stage), from that check's relative pose and inlier
    ratio. The paper writes ``lc_rat = alpha * ||log(T_i T_j^-1)|| * ratio_inl`` (alpha
    0.001, "initial inlier ratio" 50 %) and rejects a candidate whose ``lc_rat`` lies below
@@ -59,9 +55,10 @@ GGS) is accepted only when it passes every test here, cheapest first:
    the twist norm in metres and radians, and ``ratio_inl`` the check's inliers over its
    matches. The paper's 50 % "initial" inlier ratio is not a parameter here: it is what a
    true loop is expected to reach, and PnP's 300 RANSAC iterations cover it with 0.999
-   confidence (which needs 218 with OpenCV's 5-point samples). The discount is small at
-   alpha = 0.001 (2 % at 20 m): the test rejects above all a candidate whose matches are
-   mostly wrong, which is what perceptual aliasing produces (a repeated facade matched by
+   confidence. The paper's literal ``lc_rat`` would accept larger motions more readily;
+   we discount the inlier ratio instead (docs/decisions/0014-loop-verification.md). The
+   discount is small at alpha = 0.001 (2 % at 20 m): the test rejects above all a
+   candidate whose matches are mostly wrong, which is what perceptual aliasing produces (a repeated facade matched by
    descriptor, fitting a pose with a few chance inliers).
 """
 

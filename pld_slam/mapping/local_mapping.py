@@ -10,79 +10,23 @@ a method below:
    see it, or if two keyframes after its creation its observations weigh less than
    ``mapping.min_observation_weight`` (4), a stereo observation counting 2 and a
    left-image-only one 1, as ORB-SLAM2 counts them: two stereo keyframes keep a landmark.
-   (Counting keyframes instead, and asking for three, culled most landmarks two keyframes
-   a few frames apart shared, and local BA, left with a few dozen, moved well-tracked
-   keyframes by 10-20 cm on the synthetic street.) After three keyframes a landmark is no
-   longer recent. A landmark of any age seen moving in ``mapping.dynamic_streak`` (2)
-   frames since tracking last found it among the static features dies too (the paper:
-   movers must not stay in the map): matched to a feature labelled dynamic, predicted
-   where it is missed under a mover (`pld_slam.tracking.local_map.missed_near_movers`),
-   or missed where the stereo pair shows a farther surface (`pld_slam.tracking.see_through`).
-   Two stricter streaks were measured and not kept (``benchmarks/dynamic.py``; parked:
-   those made at rest and alive 5 keyframes after their car started, seeds 6-11, 5 today).
-   A recent landmark removed at its first frame seen moving (it has no static finds to
-   weigh against the evidence) took parked to 4 (a phantom 8 m in front of a car, made 6
-   frames before it started and seen moving the frame after) and kept seeds 0-5 at 0, with
-   both detectors' mean ATE over seeds 0-2 within 2 mm (convoy 0.069 -> 0.072 m, KITTI 06
-   0.033 -> 0.034); but with the true masks convoy seed 2 went from 0.051 to 1.85 m (not
-   traced: beside a bus that fills the view, young landmarks are much of what the map
-   has). ``mapping.dynamic_streak`` 1 took parked to 2 and KITTI 06 to 0.042 m: a static
-   landmark found for long and matched once to a feature labelled dynamic is no mover.
-   A streak, not a share of all its sightings: a parked car that pulls out was found
-   static in dozens of frames, and a rule that asked for as many moving sightings as
-   static ones (ours until then) kept its landmarks long after it left. On the synthetic
-   ``parked_then_moving`` (seeds 0-2, ``benchmarks/dynamic.py --section parked``), of the
-   240 landmarks made on the pulling-out cars while they rested, those still alive 5
-   keyframes after each started went from 76 to 18, and those made after the start from
-   52 to 4; the streak alone changed neither (those landmarks are missed, not matched).
-   Mean ATE, before and after: synthetic static, dynamic and low texture (150 frames,
-   seeds 0-2) within 1 %; convoy 0.073 and 0.075 m (true masks: 0.063 m), crossing 0.013 m
-   both; KITTI 06 0.0305 m both, raw 0005 0.0863 and 0.0860 m. Judging every landmark in
-   the image, not only those the search of the local map tried, then left 7 and none
-   (`missed_near_movers`, "In the image, not only searched"). Counting also the
-   missed points the frame's stereo pair sees through (`pld_slam.tracking.see_through`,
-   ``mapping.see_through``) left 3 and none; convoy 0.075 -> 0.072 m (masks 0.064),
-   crossing, dynamic and static within a millimetre, KITTI 06 and raw 0005 unchanged
-   (0.026 / 0.086 m), for 2.4 ms per KITTI 06 frame.
-   A find within ``mapping.dynamic_memory`` (10) tracked frames after a frame that saw the
-   landmark moving does not end its streak. A car that creeps off is still found where
-   it was for a few frames, because it moves along the line of sight by less than the
-   stereo noise, and the detectors label it only now and then: on ``parked_then_moving``
-   seed 2, a landmark labelled at frames 69 and 78 was found static at 75-77. A static
-   landmark mislabelled next to a mover is found again for longer than that.
-   On ``parked_then_moving`` (``benchmarks/dynamic.py --section parked``), those made at
-   rest and alive 5 keyframes after their car started went from 2 to 1 on seeds 0-5 and
-   stayed at 5 on seeds 6-11 (made moving: 1 and 1 on seeds 0-5, 2 and 1 on seeds 6-11),
-   without the memory and with it. Means over seeds 0-2, both
-   detectors, without and with: convoy 0.072 / 0.071 m, crossing 0.013 / 0.014, dynamic
-   0.047 / 0.048, static 0.031 / 0.032; KITTI 06 0.0246 / 0.0251, raw 0005 0.0887 / 0.0885.
-   What was left then (seeds 5, 6 and 11 traced) were phantoms: landmarks made on a car at
-   a wrong depth, still found in a few frames (`pld_slam.tracking.see_through`, "Found at
-   another depth", takes seeds 0-5 to 0).
-   A landmark of any age in view that tracking misses in ``mapping.max_missed_frames`` (10)
-   frames, with no find in between, dies too: a point in front of the camera and inside the
-   image, beyond its search range or not (the range bounds where its descriptor matches, not
-   where it can be seen), and not hidden by a nearer mover
-   (`pld_slam.tracking.local_map.missed_near_movers`); a line predicted in view.
-   ORB-SLAM2 judges only new landmarks by how often they are found; what that leaves here
-   is what the movers' rules above cannot see: a landmark whose place now shows a flat
-   background (a corner of the car's outline, mapped in front of the car), or a car's
-   corner mapped from far off and out of its search range as the camera closes in on the
-   spot the car left. Neither movers nor stereo give evidence there; the misses are all
-   there is, and a static landmark missed for a second of driving contributes nothing
-   while it is missed. On ``parked_then_moving`` seeds 0-5, those made at rest and alive 5
-   keyframes after their car started went from 11 to 2 (seeds 0-2: 3 to 1); those made
-   moving stayed at 1. Map ATE without it and with it (150 frames, both detectors, seeds
-   0-2): static 0.0330 / 0.0353 m (seeds 3-8: 0.0437 / 0.0424), dynamic 0.0571 / 0.0555, low
-   texture 0.0918 / 0.0800; KITTI 06 0.0263 / 0.0246, raw 0005 0.0862 / 0.0887. Raw 0005
-   pays most; with the hidden landmarks counted as missed too, 7 frames gave 0.0895, 10
-   0.0889, 15 0.0874 and 20 0.0862 (KITTI 06 0.0260, 0.0250, 0.0269, 0.0264); 10 frames,
-   a second at KITTI's rate, is where the parked cars' landmarks go before 5 keyframes pass.
-   8 frames, measured later against 10: on ``parked_then_moving`` seeds 6-11, those made at
-   rest and alive 5 keyframes after the start 5 -> 2 (one never in view again); both
-   detectors, seeds 0-2, convoy 0.069 -> 0.070 m, crossing 0.014 -> 0.013, dynamic
-   0.047 -> 0.046, static 0.032 -> 0.033; but KITTI 06 0.033 -> 0.037 and raw 0005
-   0.087 -> 0.089, so 10 stays.
+   After three keyframes a landmark is no longer recent. A landmark of any age seen moving
+   in ``mapping.dynamic_streak`` (2) frames since tracking last found it among the static
+   features dies too (the paper: movers must not stay in the map): matched to a feature
+   labelled dynamic, predicted where it is missed under a mover
+   (`pld_slam.tracking.local_map.missed_near_movers`), or missed where the stereo pair
+   shows a farther surface (`pld_slam.tracking.see_through`). A find within
+   ``mapping.dynamic_memory`` (10) tracked frames after a frame that saw the landmark
+   moving does not end its streak. A landmark of any age in view that tracking misses in
+   ``mapping.max_missed_frames`` (10) frames, with no find in between, dies too: a point
+   in front of the camera and inside the image, beyond its search range or not (the range
+   bounds where its descriptor matches, not where it can be seen), and not hidden by a
+   nearer mover (`pld_slam.tracking.local_map.missed_near_movers`); a line predicted in
+   view. The paper leaves culling open; ORB-SLAM2 judges only new landmarks. We add the
+   streaks because a parked car that pulls out was found static in dozens of frames
+   (a streak, not a share of all sightings), a creeping car is labelled only now and
+   then (the memory), and a place that now shows a flat background gives no evidence but
+   the misses (docs/decisions/0003-landmark-culling.md).
 3. `_create_landmarks`: the paper creates landmarks "for the new common features
    observed in the current KF and previous KF". A stereo keyframe has the depth of every
    stereo point and line already, so, as ORB-SLAM2 does for stereo, we create a landmark
@@ -91,15 +35,11 @@ a method below:
    rejected (keypoints without a stereo match only observe existing landmarks), and
    those whose landmark step 2 has just removed as moving: a slow mover found static
    within ``mapping.dynamic_memory`` is tracked by the keyframe, and a fresh landmark
-   from its feature would start without the streak that removed the old one (on
-   ``parked_then_moving`` seeds 0-11, 28 fewer landmarks made on the cars, of 8,700;
-   those alive 5 keyframes after the start unchanged; synthetic static and dynamic
-   seeds 0-5 within 1 %, KITTI 06 and raw 0005 the same to 0.1 mm); step 4
+   from its feature would start without the streak that removed the old one; step 4
    gives it the observations of the neighbours that see it too, and step 2 removes it if
-   none do. A rejected match is a mismatch or a mover the detectors missed: on the
-   synthetic ``convoy`` (30 frames) the detectors found 90 % of the convoy's points, and
-   the other 10 %, mapped at each keyframe, left 190 landmarks on the convoy alive at the
-   end of the run; a feature the frame has no match for yet is mapped as before.
+   none do. A rejected match is a mismatch or a mover the detectors missed, which mapped
+   at each keyframe leaves landmarks on movers; a feature the frame has no match for yet
+   is mapped (docs/decisions/0004-landmark-creation.md).
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
    keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
    theirs into it, and fused (`pld_slam.matching.fusion`: the matcher of tracking within
@@ -112,17 +52,10 @@ a method below:
    local BA (`_local_ba_due`). ORB-SLAM2 does the like by timing: a local BA is aborted,
    or never started, when keyframes come faster than it runs. A skipped keyframe keeps its
    tracked pose and is optimised by the next local BA, a frame or more later, whose window
-   (the new keyframe's strongest covisible keyframes) holds it. On KITTI 06 (a keyframe every 1.6 frames) 23 of the
-   32 keyframes ran local BA: mapping 73 against 83-86 ms per frame, total 134-136 against
-   140-149 ms mean (median 110-115 against 157-168), the same ATE (0.0305 m). Raw 0005
-   (a keyframe every 3 frames) and the synthetic sequences (every 2 to 4) skip none.
-   The KITTI family file runs local BA at most every 3 frames over a window of 7
-   keyframes (~11 frames, ~13 m of driving at a keyframe every 1.6 frames): on KITTI 06,
-   15 of the 32 keyframes ran it, mean 95-100 ms per frame against 109-114 (median 76-82
-   against 80-84), ATE 0.0263 m against 0.0305; raw 0005 0.0861 against 0.0860; the
-   robustness copies (every second frame, from frames 10 and 25) within 5 % of before.
-   The default stays at 2 frames and 10 keyframes: on the synthetic streets (150
-   frames, seeds 0-2) 3 frames took the dynamic scenario's mean ATE from 0.057 to 0.063 m.
+   (the new keyframe's strongest covisible keyframes) holds it. The KITTI family file runs
+   local BA at most every 3 frames over a window of 7 keyframes; the default stays at 2
+   frames and 10 keyframes, which the synthetic streets need
+   (docs/decisions/0005-local-ba-cadence.md).
 6. `_cull_keyframes`: a covisible keyframe (never the first, nor one not yet in the spanning tree) whose landmarks are
    ``mapping.redundant_keyframe_ratio`` (90 %) observed by at least
    ``mapping.redundant_observers`` (3) other keyframes is removed (ORB-SLAM2 also asks

@@ -221,7 +221,7 @@ class Map:
 
         Their summaries (viewing direction, distance range, descriptor) stay as they are:
         refreshed after every BA, as ORB-SLAM2 does, they cost accuracy on five of seven
-        sequences (`benchmarks/decisions/stereo_scale.md`, "Hypotheses measured and rejected").
+        sequences (`docs/decisions/0001-stereo-scale.md`, "Hypotheses measured and rejected").
         """
         kind.writable("geometry")[landmarks] = geometry_w
 

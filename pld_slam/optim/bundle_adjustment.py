@@ -11,11 +11,12 @@ as in `pose_only`, then a shift (3) per point and per line endpoint (a line is i
 endpoints, `pld_slam.mapping.landmarks`). Poses marked ``fixed`` are not unknowns; the
 caller fixes at least one to remove the gauge freedom.
 
-Preconditioning. A BA Jacobian is ill-conditioned block by block (a landmark's depth against
-its lateral position, a pose's translation against its rotation), which column scaling
-cannot fix, and LSMR then needs ~70 iterations per step: on KITTI, local BA spent 75 % of
-its time there. The solver's unknowns are therefore whitened block by block
-(`_whitening`), the block-Jacobi preconditioner applied as a change of variables.
+Preconditioning. A BA Jacobian is ill-conditioned block by block (a landmark's depth
+against its lateral position, a pose's translation against its rotation), which column
+scaling cannot fix, and LSMR then needs many iterations per step, most of local BA's time.
+The solver's unknowns are therefore whitened block by block (`_whitening`), the
+block-Jacobi preconditioner applied as a change of variables
+(docs/decisions/0011-bundle-adjustment-solver.md).
 
 Jacobian. Every row depends on one pose and one world point (a map point, or the line
 endpoint the row measures): 6 + 3 non-zeros, or 3 when its pose is fixed. The column
@@ -31,46 +32,33 @@ rows), and scaling by column norms is what makes LSMR converge in few iterations
 Memory. The Jacobian reaches the solver as a `LinearOperator` over our CSR matrix, with
 the column norms as a fixed ``x_scale``, rather than as the matrix with ``x_scale="jac"``
 (norms updated at every step): given a matrix, `least_squares` copies it at every
-evaluation, squares a copy for the norms and transposes another for LSMR. Global BA
-after 1,500 frames of the synthetic city (600 keyframes, 207,570 observations) peaked at
-774 MB over the map, then 580 MB, and took 1.9 instead of 2.4 s, with the same final
-cost, outliers and poses to 0.1 mm; at 4,541 frames the run's peak was 3.1 GB, most of
-it this solve. Since then no evaluation of every row is held with its Jacobians: the
-chi-square tests and the solver's trial steps evaluate residuals only; a solve evaluates
-its rows' Jacobians at its start, hands that matrix to the solver and drops them, and
-later Jacobians are evaluated `JACOBIAN_CHUNK_ROWS` rows at a time; the rows are
-evaluated from their pose and world point indices and axes made once per problem
-(`_BundleRows`), a solve keeps the indices of its rows rather than copies of them, and
-the CSR structure and column norms are filled by kernels without (R, 9) temporaries, and
-each Jacobian handed to the solver is written over the one before
-(`_SparseProblem.jacobian_operator`). The same solve peaks at 382 MB over the map
-resident (597 before; traced by Python 523 -> 328 MB), with the same evaluations and
-cost, and KITTI 06's trajectory is the same to the byte.
+evaluation, squares a copy for the norms and transposes another for LSMR: on a long run
+global BA's memory was most of the run's peak
+(docs/decisions/0011-bundle-adjustment-solver.md). No evaluation of every row is held with
+its Jacobians: the chi-square tests and the solver's trial steps evaluate residuals only;
+a solve evaluates its rows' Jacobians at its start, hands that matrix to the solver and
+drops them, and later Jacobians are evaluated `JACOBIAN_CHUNK_ROWS` rows at a time; the
+rows are evaluated from their pose and world point indices and axes made once per problem
+(`_BundleRows`), a solve keeps the indices of its rows rather than copies of them, and the
+CSR structure and column norms are filled by kernels without (R, 9) temporaries, and each
+Jacobian handed to the solver is written over the one before
+(`_SparseProblem.jacobian_operator`).
 
-Speed (issue 8). Measured on 12 local BA problems saved from a KITTI 06 run (4,700-7,200
-observations, ~21,700 rows), old and new code alternated on each, 7 times, median per
-problem: the new one takes 0.64 of the time (0.57-0.76), with the same nfev, inliers
-and final cost, poses within 5e-12 m. From the profile (cProfile, 12 problems): row
-evaluations were 35 % of the time, the Jacobian's assembly 16 %, the solver's set-up
-13 %; now the rows are one numba kernel (`pld_slam.optim.point_reprojection`), the
+Speed (issue 8). The rows are one numba kernel (`pld_slam.optim.point_reprojection`), the
 Jacobian's values are filled by `_fill_jacobian_values` into int32 CSR indices, and a
 solve evaluates its rows with Jacobians once at its start, for the whitening, the column
-scale and the solver's first Jacobian (before, each round evaluated its start twice).
-What remains is `least_squares` itself:
-LSMR's sparse products 31 %, the residuals 20 %, the Jacobian 11 %, the column norms of
-``x_scale="jac"`` 9 % (now once per solve, above). With the unknowns block-whitened,
-``x_scale=1.0`` needed the same nfev and moved poses by up to 11 mm (the stopping
-tolerance allows that much), so it was not taken.
+scale and the solver's first Jacobian. What remains is `least_squares` itself, mostly
+LSMR's sparse products. With the unknowns block-whitened, ``x_scale=1.0`` moved poses
+within the stopping tolerance and was not taken (the profile:
+docs/decisions/0011-bundle-adjustment-solver.md).
 
 Line endpoints. The horizontal error assumes that an observation's detected endpoints are
 the map line's endpoints; a segment seen shorter or longer (occlusion, LSD cutting it
-elsewhere) breaks that, and its horizontal error cannot be met by any geometry. Under
-the Huber loss such a term still pulls linearly: in local BA on the synthetic street a
-line whose two observations ended 90 px apart along the line (horizontal chi2 3,782) had
-one endpoint thrown 300 m away, and half the lines of a window moved more than 5 m. A
-horizontal term enters the solve only where it passes its chi-square test at the start,
-at the tracked poses; the vertical error (distance to the infinite line) has no such
-assumption and always enters.
+elsewhere) breaks that, and its horizontal error cannot be met by any geometry. Under the
+Huber loss such a term still pulls linearly and can throw an endpoint hundreds of metres
+away (docs/decisions/0011-bundle-adjustment-solver.md). A horizontal term enters the solve
+only where it passes its chi-square test at the start, at the tracked poses; the vertical
+error (distance to the infinite line) has no such assumption and always enters.
 
 Rounds, as ORB-SLAM2's ``LocalBundleAdjustment``: a robust solve; the observations that
 fail their chi-square test at its solution (or whose landmark lies behind the camera)
@@ -103,16 +91,13 @@ from pld_slam.optim.robust import huber_without_curvature
 
 _LSMR_MAX_ITERATIONS = 10
 """LSMR iterations allowed per step: the step is then an inexact Gauss-Newton step, which the
-trust region accepts or shrinks like any other. Uncapped, late steps took 40-50 iterations
-for the last digits of a step the next evaluation corrects anyway; capped at 10, local BA
-on KITTI 06 ran 20 % faster to the same cost (within 0.1 %) and poses (within 1 mm)."""
+trust region accepts or shrinks like any other. Uncapped, late steps spend their iterations
+on the last digits of a step the next evaluation corrects anyway (docs/decisions/0011-bundle-adjustment-solver.md)."""
 
 _FTOL = 1e-3
 """Stop when a step lowers the cost by less than 0.1 %: BA refines a map that tracking
-already put close to its optimum, and each evaluation of a local window costs milliseconds.
-Against 0.01 %, local BA on KITTI 06 took 23 % less time (median 166 ms against 215 ms per
-keyframe) for the same trajectory (ATE 0.180 m against 0.183 m; synthetic street 0.029 m
-against 0.031 m)."""
+already put close to its optimum, and each evaluation of a local window costs milliseconds;
+a tighter stop costs time for the same trajectory (docs/decisions/0011-bundle-adjustment-solver.md)."""
 
 _STOPPING_TOLERANCES = dict(xtol=1e-8, gtol=1e-8)
 """`least_squares`' step and gradient tolerances; its cost tolerance is `BundleOptions.ftol`."""
@@ -120,10 +105,8 @@ _STOPPING_TOLERANCES = dict(xtol=1e-8, gtol=1e-8)
 TO_CONVERGENCE = dict(ftol=1e-6, lsmr_max_iterations=100)
 """`BundleOptions` fields that solve a problem to its optimum instead of refining it. The drift
 of a long trajectory is a problem's flattest direction, and steps of `_LSMR_MAX_ITERATIONS`
-stopped at a `_FTOL` gain leave it nearly untouched: every keyframe of the 300-frame synthetic
-street (seed 1) bundle-adjusted from the run's poses stopped after 4 evaluations with the last
-pose's pitch error unchanged (0.45 deg); with these, after 22, at 0.37 deg
-(`benchmarks/ba_truth.py` solves this way)."""
+stopped at a `_FTOL` gain leave it nearly untouched (docs/decisions/0011-bundle-adjustment-solver.md;
+`benchmarks/ba_truth.py` solves this way)."""
 
 
 @dataclass(frozen=True)
@@ -574,9 +557,9 @@ _WHITENING_FLOOR = 1e-4
 """Eigenvalues of a block's Gram matrix below this share of its largest are raised to it, so
 that a direction the rows do not see (a line endpoint sliding along its line, the viewing
 ray of a point seen once without a stereo match) gets a scale at most 100 times that of
-the best-seen direction. With 1e-8 (scale 1e4) such a direction became seen, and strongly
-nonlinear, as soon as the poses moved, and the trust region, measured in whitened units,
-collapsed: the robust round stopped with the poses 5 cm off instead of 7 mm."""
+the best-seen direction. A smaller floor lets such a direction become seen, and strongly
+nonlinear, as soon as the poses move, and the trust region, measured in whitened units,
+collapses (docs/decisions/0011-bundle-adjustment-solver.md)."""
 
 
 @kernel
@@ -586,11 +569,9 @@ def _fill_jacobian_values(jac_pose, jac_landmark, row_free_pose, pose_blocks, ro
     the landmark entries ``jac_landmark[r] @ point_whitening[row_world_point[r]]`` (3).
 
     It replaced a loop over poses of (R_k, 6) x (6, 6) products, an ``einsum`` over the
-    rows and a boolean gather of the (R, 9) values: on 12 local BA problems saved from
-    KITTI 06 (21,700 rows) `_SparseProblem.jacobian` took 2.0 ms, now 0.46 ms (same values
-    within 1e-12; the kernel compiles in 0.3 s at the first call of a process). The
-    Gram matrices of `_whitening` stay in numpy: once per solve, a kernel would save
-    ~5 ms per local BA and cost 0.55 s of compilation.
+    rows and a boolean gather of the (R, 9) values, with the same values. The Gram
+    matrices of `_whitening` stay in numpy: once per solve, a kernel would save less than
+    its compilation costs (docs/decisions/0011-bundle-adjustment-solver.md).
     """
     entry = 0
     for r in range(len(row_free_pose)):
@@ -689,11 +670,11 @@ def _held_directions(state: _State, pinned: np.ndarray) -> np.ndarray:
     direction: it moves only across its line. The vertical error (and its right-image
     twin) measures an endpoint's distance to the plane of an observed line; sliding along
     the line changes none of them, and with the planes of nearby views almost parallel an
-    endpoint's least-squares point along the line is ill-determined: free, endpoints slid
-    a median 1.3 m from a start 2 cm off, and one observation 50 px off its line threw an
-    endpoint 100 m away. Held, a line keeps the 4 dof of an infinite 3D line and its
-    endpoints their places along it; where a horizontal term measures an endpoint, that
-    term holds it (`pld_slam.optim.line_reprojection`).
+    endpoint's least-squares point along the line is ill-determined: free, endpoints slide
+    far from a good start (docs/decisions/0011-bundle-adjustment-solver.md). Held, a line
+    keeps the 4 dof of an infinite 3D line and its endpoints their places along it; where a
+    horizontal term measures an endpoint, that term holds it
+    (`pld_slam.optim.line_reprojection`).
     """
     lines = state.lines_w
     direction = lines[:, 1] - lines[:, 0]

@@ -8,14 +8,13 @@ all residuals are in standard deviations. The paper leaves the covariances open.
 
 - A stereo point is observed as ``(u_left, v, u_right)``, but ``u_left`` and ``u_right``
   are not independent: the right column is the left one minus a sub-pixel disparity, so
-  they share the corner's localisation error. Measured against the ground-truth motion
-  (KITTI 06 and the synthetic street, octave-0 points two frames apart), ``u_left`` and
-  ``u_right`` each erred by 0.55-1.0 px while their difference erred by only 0.16-0.21 px
-  (two disparities' errors). Treating the three as independent with one sigma gave the
-  disparity an effective sigma of 1.4 px: depth and therefore scale were under-weighted,
-  and local BA drifted in scale. The rows are therefore whitened as ``u_left / sigma``,
-  ``v / sigma`` and the disparity ``(u_left - u_right) / sigma_d``: the third
-  sigma of `PointObservations.sigma_px` is the disparity's.
+  they share the corner's localisation error, and their difference errs several times
+  less than either. Treating the three as independent with one sigma gives the disparity
+  too large an effective sigma: depth and therefore scale are under-weighted, and local
+  BA drifted in scale (docs/decisions/0018-observation-covariances.md). The rows are
+  therefore whitened as ``u_left / sigma``, ``v / sigma`` and the disparity
+  ``(u_left - u_right) / sigma_d``: the third sigma of `PointObservations.sigma_px` is the
+  disparity's.
 - Corners: ``sigma = 1.2**octave`` (ORB-SLAM2); disparities ``points.disparity_sigma_px``
   times the same factor.
 - Lines: one sigma per observation for both line terms. A line's vertical term has four

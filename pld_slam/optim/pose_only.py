@@ -41,12 +41,11 @@ rows of every observation once at its solution, for the inlier tests, and the ne
 starts from that evaluation instead of computing its first one again; residuals and
 Jacobian come from one evaluation per pose; the stopping tolerances are
 `_STOPPING_TOLERANCES`. The rows are evaluated by the numba kernel of
-`pld_slam.optim.point_reprojection` (issue 8): alternating old and new code 5 times on 30
-frames of `benchmarks/pose_solver_speed.py`, a call takes 0.70 of the time with 700
-points, 100 lines and 20 % outliers (0.75 with points only), to the same poses (1e-13).
-Most of what remains is `least_squares`'s own work; ``tr_solver="exact"`` would save
-another 17 % with single-threaded OpenBLAS but moves poses by up to 0.2 mm and brings
-back the thread stall of `_method_settings` wherever OpenBLAS runs threads.
+`pld_slam.optim.point_reprojection` (issue 8). Most of what remains is `least_squares`'s
+own work. The paper leaves the solver open; we take ``"trf"``'s exact step for robust
+rounds and ``"lm"`` for plain ones because, with OpenBLAS single-threaded, they are the
+fastest for the same poses (`_method_settings`; the measurements, taken at different
+times: docs/decisions/0013-pose-only-solver.md).
 
 Observations whose landmark lies at depth ``<= min_depth`` at the initial pose are left
 out of the solve (chi2 ``inf``, outliers); one that crosses that depth during the solve
@@ -88,9 +87,8 @@ from pld_slam.optim.robust import huber_without_curvature
 
 _STOPPING_TOLERANCES = dict(ftol=1e-5, xtol=1e-8, gtol=1e-8)
 """`least_squares` stopping rule: scipy's defaults but ``ftol``, the relative cost decrease of
-the last step (which is still taken). Measured on 90 benchmark frames against a 1e-12
-solve: 1e-8 (the default) and 1e-5 moved no pose by more than 0.02 um / 2.1 udeg, with 17
-and 13 evaluations per call; 1e-4 saves 2 more but moved poses up to 34 um / 0.2 mdeg."""
+the last step (which is still taken): 1e-5 moves no pose measurably against the default
+for fewer evaluations, 1e-4 moves them more (docs/decisions/0013-pose-only-solver.md)."""
 _GRAM_RATIO_FLOOR = 1e-6
 """``s_min / s_max`` above which the Gram matrix gives it accurately (`_relative_smallest_singular_value`)."""
 
@@ -319,13 +317,9 @@ def _method_settings(robust: bool, huber_scale: float) -> dict:
     A robust solve needs ``"trf"``, the one method that takes a loss, here with its
     default ``tr_solver="exact"`` (an SVD of the (K, 6) Jacobian per iteration); a plain
     one uses ``"lm"`` (MINPACK). ``"lsmr"`` was used while LAPACK ran on OpenBLAS's
-    threads, which stall when the other core is busy (10.6 / 21.3 ms per
-    `optimize_pose_rejecting_outliers` call with the other core idle / busy, against 12.8 /
-    12.4 for ``"lsmr"``). With OpenBLAS single-threaded (`pld_slam`'s default), on
-    ``benchmarks/pose_solver_speed.py`` (700 points + 100 lines, 20 % outliers) a call
-    takes 8.7 ms against 10.7 with ``"lsmr"``, with the same rounds, evaluations and
-    errors; on KITTI 06 tracking's ``pose`` and ``local_map`` stages took 8.5 and 20 against
-    13 and 26 ms per frame, for the same trajectory.
+    threads, which stall when the other core is busy; with OpenBLAS single-threaded
+    (`pld_slam`'s default) the exact step is faster for the same rounds, evaluations and
+    errors (docs/decisions/0013-pose-only-solver.md).
     """
     if robust:
         return dict(method="trf", tr_solver="exact", loss=huber_without_curvature, f_scale=huber_scale)
@@ -362,8 +356,8 @@ def _relative_smallest_singular_value(jac: np.ndarray) -> float:
     The eigenvalues of ``J^T J`` are the squared singular values up to ``~eps s_max**2``,
     so a ratio above `_GRAM_RATIO_FLOOR` is accurate to ``~eps / ratio**2`` and needs no
     SVD; below it the ratio comes from the SVD of ``J``. We avoid the SVD because LAPACK
-    on a (2500, 6) matrix runs on OpenBLAS threads: with the other core busy, an SVD or
-    QR took 2-4 ms on average instead of 0.1 ms; the Gram product starts no threads.
+    on a tall matrix runs on OpenBLAS threads, which stall with the other core busy; the
+    Gram product starts no threads (docs/decisions/0013-pose-only-solver.md).
     Fewer than 6 rows: 0 (the SVD would list only K singular values).
     """
     if len(jac) < jac.shape[1]:

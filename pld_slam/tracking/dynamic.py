@@ -6,26 +6,24 @@ velocity) and compares the prediction with the detection. Points: the mean squar
 prediction error of each cell of the point grid; a cell over the threshold marks itself
 and its 8 neighbours dynamic, and their points are left out. Lines: the mean squared
 prediction distance of the lines of each local line group (LLG); an LLG over the
-threshold is dynamic. What the paper leaves open, and what we do:
+threshold is dynamic. What the paper leaves open, and what we do (the measurements
+behind each choice: docs/decisions/0008-dynamic-grid-and-llg.md):
 
 Predictions. The motion model's own error (an acceleration, a turn starting) is one
 6-dof pose error shared by every static feature, but it moves near features more than
-far ones: on a synthetic static street (320x240) the median prediction error was 1.3 px
-while near ground points erred by 4-9 px, so any threshold relative to the frame flagged
-40-60 % of the static points, and an absolute one fails with speed. We therefore correct
-the motion-model prediction by the robust pose fit of the frame (Huber loss, outliers
-rejected: the tracker's solve, started from the motion model) and test what it leaves:
-static features then agree to noise everywhere, a mover keeps its own displacement. The
-tracker refines the pose without the dynamic features when there are any. Tracking a
-reference frame a few frames back lets a slow mover's displacement grow.
+far ones, so any threshold relative to the frame flags many static points, and an
+absolute one fails with speed. We therefore correct the motion-model prediction by the
+robust pose fit of the frame (Huber loss, outliers rejected: the tracker's solve,
+started from the motion model) and test what it leaves: static features then agree to
+noise everywhere, a mover keeps its own displacement. The tracker refines the pose
+without the dynamic features when there are any. Tracking a reference frame a few
+frames back lets a slow mover's displacement grow.
 
 Stereo observations. The paper compares left-image positions. We compare the stereo
 observation ``(u_left, v, u_right)``, the one the pose estimation uses: a mover along the
 viewing ray (the truck ahead in our lane, driving on as we do) barely moves in the left
 image near the focus of expansion, yet its disparity stays put while a static point's
-grows. On the synthetic dynamic street (seeds 0-2, pooled) this took point recall from
-0.58 to 0.68 (precision 0.78 to 0.73, with the member test of the time: own error over
-0.7 x the threshold). The grid cells are those of the left pixel.
+grows. The grid cells are those of the left pixel.
 
 Errors in sigma units. A point's error is divided by its expected standard deviation,
 as the pose estimation weighs it: ORB corners are located to ``1.2**octave`` px in each
@@ -33,29 +31,23 @@ image, and the prediction inherits the reference point's depth uncertainty
 (`predict_stereo_with_depth_sigma`: a disparity sigma of ``disparity_sigma_px * 1.2**octave``, 0.5 px
 at octave 0, is a depth sigma of ``z**2 / (b f)`` times it, magnified as the camera
 drives towards the point). Without the depth term, the near ground and the far facades
-filled the error tail: on the synthetic dynamic street it took point precision from
-0.78 to 0.87 (recall 0.63 to 0.58), and the static street's false marks from 1.3 % to
-0.7 %; the lower floor below then bought the recall back.
+fill the error tail.
 
 Thresholds. The paper takes them from DynPL-SVO without stating them. Ours come from the
 frame itself: the threshold is ``error_ratio`` (4) times the median error of the frame's
 matched features of that kind, and at least ``min_point_error`` (2.5 sigma units) for
 points and ``min_line_error_px`` (3 px) for lines; on the synthetic and KITTI runs the
-floor is what binds, the frame median being ~0.7. Floors of 2.0-3.5 trade precision for
-recall along one curve (pooled point precision + recall stayed at 1.43-1.45 over floors,
-``min_cell_matches`` 1-2, ``member_ratio`` 0.5-1.0); 2.5 is where precision passes 0.8.
+floor is what binds. Floors trade precision for recall along one curve; 2.5 is where
+point precision passes 0.8.
 
 Group and member evidence, points. A grid cell is hot when the *mean offset vector* of
 its points (detection minus prediction) is longer than the threshold, with at least
 ``min_cell_matches`` (2) points: a mover displaces its points together, while noise and
 mismatches point every way and average out (the mean squared error of the paper let one
-mismatch blank a cell and its 8 neighbours: 22-28 % of KITTI's static features were
-marked). The paper then drops every point of the hot cell and its 8 neighbours; we drop
-those that moved with it: a point whose offset is closer to the hot cell's mean offset
-than to zero, i.e. that fits the mover better than the static scene (static points next
-to a mover keep offsets near zero and stay in). Against a test of the point's own error
-(over 0.7 x the threshold) this took point precision from 0.73 to 0.78 for a recall of
-0.63 instead of 0.68, and the static street's false marks from 1.6 % to 1.3 %.
+mismatch blank a cell and its 8 neighbours). The paper then drops every point of the hot
+cell and its 8 neighbours; we drop those that moved with it: a point whose offset is
+closer to the hot cell's mean offset than to zero, i.e. that fits the mover better than
+the static scene (static points next to a mover keep offsets near zero and stay in).
 
 Group and member evidence, lines. An LLG is dynamic when the median distance of its
 lines exceeds the threshold; the LLG of a line is the line and the lines whose circular
@@ -78,12 +70,9 @@ First frames. The second frame of a run has no motion model (no motion before it
 fit starts from the identity, and detection then works as on any other frame, since it
 needs only the fitted pose. A frame whose fit failed (tracking lost) gets no labels.
 
-Measured with `benchmarks/dynamic.py` (synthetic dynamic seeds 0-5, 100 frames, pooled):
-point precision 0.81 and recall 0.62, line precision 0.73 and recall 0.71; synthetic
-static: 0.8 % of features marked; cost about 2 ms per frame. Recall is bounded by
-pedestrians walking along the sidewalk 10-25 m ahead: their points move ~1 px per frame
-against the static prediction, under the noise of an ORB corner (seeds 0-2: 12 % of the features on
-moving objects err by less than half the threshold).
+Recall is bounded by pedestrians walking along the sidewalk 10-25 m ahead: their points
+move ~1 px per frame against the static prediction, under the noise of an ORB corner
+(`benchmarks/dynamic.py` measures precision, recall and cost).
 """
 
 from dataclasses import dataclass

@@ -4,48 +4,18 @@ The tracker matches descriptors between the previous and the current frame and p
 the matched positions here; `point_grid_filter` and `line_llg_filter` each return a
 boolean keep-mask over the matches (whether to call them is the tracker's choice,
 ``filters.point_grid`` and ``filters.line_llg``). `local_line_groups` is public: the
-dynamic-LLG detector groups lines the same way.
-
-Measurements
-------------
-Brute-force descriptor matches (OpenCV ``BFMatcher``, Hamming, cross-check, no motion
-prior) between the stereo features of consecutive frames: the 50 pairs of KITTI 06
-frames 0-50 and the 9 pairs of the EuRoC V1_01 flight extract (16,867 point and 2,818
-line matches). Labels come from the ground-truth relative pose: a point match is correct
-when the previous frame's stereo point projects within 3 px of the matched pixel, a
-gross mismatch beyond 10 px (in between: not counted); a line match is correct when
-both projected previous 3D endpoints lie within 3 px of the matched current infinite
-line and the directions agree within 5 deg, a gross mismatch beyond 10 px or 10 deg.
-Each cell: gross mismatches removed / correct matches lost.
-
-======================  ===================  ===================  ====================
-rule                    KITTI 06 0->1        KITTI 06 10->11      all 59 pairs
-======================  ===================  ===================  ====================
-points, paper literal   8/33 / 113/151       15/26 / 131/182      44 % / 75 %
-points, ours            17/33 / 4/151        17/26 / 1/182        52 % / 0.9 %
-lines, paper literal    3/3 / 2/31           1/5 / 0/27           66 % / 7.4 %
-lines, ours             3/3 / 0/31           3/5 / 0/27           81 % / 2.6 %
-======================  ===================  ===================  ====================
-
-All pairs: 2,044 gross point mismatches and 13,415 correct point matches, 253 gross
-line mismatches and 2,424 correct line matches. Ours on KITTI alone: points 49 % / 1.2
-%, lines 81 % / 2.3 %; on EuRoC: points 76 % / 0.2 %, lines 6 of 7 / 3.2 %. The
-paper-literal point rule is ORB-SLAM2's grid of 64 x 48 cells, pixel coordinates from
-the image origin and ``|g_l - g_r| > 1.5 (g_lm - g_rm)``; the paper-literal line rule
-compares with the mean over the whole LLG including the judged line, without floors.
-The point mismatches our rule leaves are out of reach of any rule local to a cell: 28 %
-of all gross mismatches sit in cells of fewer than three matches, and 20 % in cells
-where mismatches are the majority (median share 67 %), where the median follows them.
+dynamic-LLG detector groups lines the same way. What each reading of the paper removes
+and loses, on labelled matches of KITTI 06 and EuRoC, is in
+docs/decisions/0007-mismatch-filters.md; the mismatches the point rule leaves are out of
+reach of any rule local to a cell (lone matches, cells where mismatches are the
+majority), and the robust pose solver deals with them.
 
 Point filter: decisions
 -----------------------
 - Grid. The paper says "64x48 grids", the numbers of ORB-SLAM2's grid (64 columns by 48
-  rows). On a 1226 x 370 KITTI image those are 19 x 8 px cells: with 242 matches per
-  KITTI pair, 1.8 matches per occupied cell and 42 % of the matches in a cell of three
-  or more, and the rule below removes 15 % of the mismatches. We read it as cells of
-  64 x 48 px (``point_grid_cell_width``, ``point_grid_cell_height``): 4.5 matches per
-  occupied KITTI cell, 88 % of the matches (97 % on EuRoC) in cells of three or more,
-  52 % of the mismatches removed.
+  rows); on a KITTI image those are 19 x 8 px cells, mostly too sparse to judge. We read
+  it as cells of 64 x 48 px (``point_grid_cell_width``, ``point_grid_cell_height``)
+  (docs/decisions/0007-mismatch-filters.md).
 - Cells are taken in the previous image and each cell's matches are compared in both
   images, so ``g_l`` and ``g_r`` average over the same matches (the paper's
   "corresponding grids").
@@ -63,17 +33,14 @@ Point filter: decisions
   deviation of the match's flow from its cell's mean flow, across the direction of the
   cell's centroid seen from the image origin, times ``|m|``; divided by ``|m|`` it is a
   deviation in pixels, zero under any translation. Like the paper's quantity it is
-  blind to deviations along that direction. Measured (removed / lost): ours 51.7 % /
-  0.86 %; image origin fixed in both images 51.7 % / 1.0 %; image centre 50.5 % /
-  2.2 %; each cell's centre 46.7 % / 13 %.
+  blind to deviations along that direction. (The other origins measured:
+  docs/decisions/0007-mismatch-filters.md.)
 - Threshold. The paper rejects ``|g_l - g_r| > alpha (g_lm - g_rm)``, but the cell mean
   of the changes is near zero (the flow term averages out over the cell), so this
-  rejects three quarters of the correct matches. We compare each deviation's distance
-  to the cell's median with alpha (1.5) times the cell's mean distance to the median,
-  and reject only when it also exceeds `POINT_MIN_DEVIATION_PX` (3 px), so that a
-  noise-level deviation never rejects. Correct matches lost with a floor of 0 px: 13 %,
-  1 px: 9.1 %, 2 px: 2.8 %, 3 px: 0.86 %, 5 px: 0.23 %; mismatches removed stay at
-  51-52 %.
+  rejects most correct matches. We compare each deviation's distance to the cell's
+  median with alpha (1.5) times the cell's mean distance to the median, and reject only
+  when it also exceeds `POINT_MIN_DEVIATION_PX` (3 px), so that a noise-level deviation
+  never rejects (the floors measured: docs/decisions/0007-mismatch-filters.md).
 - Cells with fewer than `MIN_CELL_MATCHES` (3) matches are kept whole: with two the
   median sits halfway and cannot tell which one is wrong (with alpha >= 1 the rule
   already rejects neither). The robust pose solver deals with what is left.
@@ -84,12 +51,10 @@ Line filter: decisions
   two lines are linked when their domains overlap (midpoint distance below the sum of
   the radii), and the LLGs are the connected components of the links (transitive: the
   paper draws LLGs as disjoint groups, and the dynamic-LLG detector needs groups).
-  On the 59 pairs 21 % of the lines are lone, 17 % in pairs, 15 % in groups of 3-5 and
-  47 % in larger ones (up to 37). Judging each line among its direct neighbours only
-  measured slightly worse (80.2 % / 3.0 %).
+  Judging each line among its direct neighbours only measured slightly worse.
 - Groups are formed in the previous image, so each match belongs to one group, as for
-  the point cells. Groups overlapping in both images (81.4 % / 2.4 %) or formed in the
-  current image (81.4 % / 2.6 %) measured the same.
+  the point cells (groups overlapping in both images, or formed in the current image,
+  measured the same).
 - Change of a match: the angle between the two segment directions modulo pi (LSD
   orients a segment by its gradient), in [0, pi/2], and the distance between the
   midpoints [px], as the paper.
@@ -97,17 +62,13 @@ Line filter: decisions
   ``line_llg_factor`` (2) times the mean over the *other* lines of its LLG. The paper's
   mean includes the judged line, which leaves a group of two unable to reject anything
   (``x > 2 (x + y) / 2`` never holds) and lets a gross mismatch raise its own
-  threshold: with the floors below that reading removes 64 % of the mismatches, ours
-  81 %. A lone line is compared with the mean over all other matches of the image, as
-  the paper says; judging every line that way gives 79 % / 1.9 %, so the groups add
-  little on these scenes. Floors: an angle change below `LINE_MIN_ANGLE_CHANGE` (5 deg;
-  the correct matches' 99th percentile is 3.7 deg) or a midpoint shift below
-  `LINE_MIN_MIDPOINT_SHIFT_PX` (20 px; LSD's endpoints slide along the line, and the
-  correct matches' median shift is 11 px) never rejects. Correct matches lost without
-  floors: 16 %; 2 deg / 5 px: 7.3 %; 3 deg / 10 px: 4.2 %; 5 deg / 20 px: 2.6 %;
-  5 deg / 30 px: 1.7 %, for 85 % down to 81 % of the mismatches removed. Of the 63
-  correct matches still lost, 61 fail by their shift alone, 34 of them in LLGs of six
-  lines or more, whose lines lie at different depths and move differently.
+  threshold. A lone line is compared with the mean over all other matches of the image,
+  as the paper says. Floors: an angle change below `LINE_MIN_ANGLE_CHANGE` (5 deg,
+  above the correct matches' spread) or a midpoint shift below
+  `LINE_MIN_MIDPOINT_SHIFT_PX` (20 px; LSD's endpoints slide along the line) never
+  rejects. The correct matches still lost mostly fail by their shift, in large LLGs
+  whose lines lie at different depths and move differently
+  (docs/decisions/0007-mismatch-filters.md).
 """
 
 import numpy as np

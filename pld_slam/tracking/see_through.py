@@ -28,58 +28,29 @@ ids go, with those under movers, into local mapping's dynamic streak
 ``mapping.see_through`` switches it off.
 
 Not in the paper, which removes landmarks whose observations turn dynamic and says no more
-about landmarks left behind by movers.
-
-Measured (`benchmarks/dynamic.py`, seeds 0-2, against the same code without it). The
-landmarks made on the synthetic ``parked_then_moving`` cars at rest and alive 5 keyframes
-after each pulled out: 7 -> 3 (none made while moving either way). What is left: two
-outline landmarks of a car that pulls out slowly (the window still matches the car's edge
-at the predicted disparity for six frames, then 5-6 % farther) and one on a car that
-creeps and is matched as a static inlier. Local mapping's missed streak
-(``mapping.max_missed_frames``) has removed the two outline ones since: their places show a
-flat background, where no image test finds evidence. Mean ATE with both detectors: convoy 0.075 ->
-0.072 m (true masks 0.064), crossing 0.013 and dynamic 0.049 unchanged, static 0.030 ->
-0.031; KITTI 06 0.026 and raw 0005 0.086 m unchanged. On the static street 4.5
-landmarks a frame are seen through, and 84 % of them have no surface within 10 % of their
-depth within 2 px of their projection (the renderer's depth): phantoms (low texture: 3.2
-a frame, 76 %). 150 frames,
-seeds 0-11, with it and without: low texture 0.109 against 0.105 m, static (seeds 6-11)
-0.0351 against 0.0347, within what sub-pixel changes alone move these runs (`MATCH_RATIO`
-0.3 gave low texture 0.102 and left 5 on the parked cars). Cost: 2.4 ms per KITTI 06
-frame (670 landmarks tested), most windows stopping after the farther part of the search.
+about landmarks left behind by movers. We add this test because the seen-through places
+are where the parked cars' remaining landmarks stood; on static streets most landmarks it
+flags are phantoms with no surface near them (docs/decisions/0010-see-through.md).
 
 Found at another depth. What is left on the parked cars after that are phantoms: landmarks
-made on a car at a wrong depth (8-9 m in front of it, or 8 m behind its side) that
+made on a car at a wrong depth (metres in front of it, or behind its side) that
 tracking still finds now and then, mostly through keypoints without a stereo match, whose
-depth no residual checks (6 of the 8 finds of two such landmarks traced). So
+depth no residual checks. So
 `landmarks_found_at_another_depth` tests the landmarks the frame's solve found through
 such a keypoint, at the keypoint: if the pair matches its window best and clearly (as
 above) at a disparity outside the landmark's by the same tolerance, on either side, the
 landmark is not where the map has it, and it joins the seen-through ones in the dynamic
 streak. Nearer counts here, unlike for a missed landmark: the window is the landmark's
-own match, not an occluder in front of it. On ``parked_then_moving``, landmarks made at
-rest and alive 5 keyframes after their car started: seeds 0-5 1 -> 0, seeds 6-11 5 -> 5;
-both detectors, seeds 0-2: convoy 0.071 -> 0.066 m, crossing 0.014, dynamic 0.048 and
-static 0.032 unchanged; KITTI 06 0.0251 -> 0.0252, raw 0005 0.0885 -> 0.0888. It tests
-about 110 such finds per KITTI frame and flags about 2. Of the 5 left on seeds 6-11, one is a
-phantom found through stereo keypoints in frames where no test flags it (seed 6), and one
-a landmark made on a car's outline whose place later shows the background at its depth,
-missed for 9 frames before it leaves the image (seed 11).
+own match, not an occluder in front of it.
 
-Why these numbers. A search only up to 1.5 times the prediction "saw through" static
-landmarks behind crossing pedestrians much nearer than that (synthetic ``crossing`` seed
-2, ATE 0.013 -> 0.055 m); up to 3 times keeps them. A depth tolerance of 20 % (the one of
-`pld_slam.tracking.local_map.MOVER_DEPTH_TOLERANCE`) missed outline landmarks 2.7 m in
-front of a background 14 m away; 10 % and 5 % removed the same ones. On seeds 6-11 one
-survivor is a point made on a car's lower outline (``parked_then_moving`` seed 11): after
-the car leaves, its window matches the road behind at a disparity 6-11 % smaller than its
-own (under 10 % and a pixel) in every frame until it leaves the image: it lies next to a
-real surface and is not seen through. 5 % (with a stricter streak for recent landmarks,
-not kept: `pld_slam.mapping.local_mapping`) left 3 there against 4 with 10 % (seed 11's
-point still among them; convoy, crossing, dynamic, static, KITTI 06 and raw 0005 within a
-millimetre), a change of one landmark that a different run's chaos also makes, so 10 %
-stays. Testing only the landmarks within a grid cell (64 px) of a feature labelled dynamic
-left 6 on the parked cars: the car that drove on is often no longer labelled near them.
+Why these numbers. A search only up to 1.5 times the prediction "sees through" static
+landmarks behind crossing pedestrians much nearer than that; up to 3 times keeps them. A
+depth tolerance of 20 % (the one of `pld_slam.tracking.local_map.MOVER_DEPTH_TOLERANCE`)
+missed outline landmarks a few metres in front of their background; 5 % changed one
+landmark, as a different run's chaos also does, so 10 % stays. Testing only the
+landmarks within a grid cell (64 px) of a feature labelled dynamic misses cars that drove
+on: they are often no longer labelled near their landmarks
+(docs/decisions/0010-see-through.md).
 """
 
 import numpy as np

@@ -7,20 +7,17 @@ disagrees. Where movers are a small minority that is the static world, and the d
 find the movers. Where they are not, it is not: a bus alongside and a truck ahead driving
 at our speed (synthetic ``convoy``, 30-40 % of the image) say "the camera stands still",
 the fitted pose follows them, and the detectors then mark the static world as moving
-(point precision 0.18 on ``convoy`` seed 0, ATE 21 m instead of 0.44 m with the true
-masks). The paper's detectors take the motion model as their reference; we make that
-explicit here, as a check between the robust solve and the detectors (on whenever a
-detector is):
+(docs/decisions/0015-static-world-check.md). The paper's detectors take the motion model
+as their reference; we make that explicit here, as a check between the robust solve and
+the detectors (on whenever a detector is):
 
 1. When. With a trusted motion model (below), the robust solve lies outside the model's
    expected error; without one, it left at least ``dynamic.rival_min_share`` (15 %) of the
    matches as outliers. Otherwise the solve stands, at no cost; it also stands when the
    static world's motion found below lies within the expected error of it. (Testing the
-   outlier share with a trusted model too ran the check, and its re-solve, on nearly every
-   KITTI raw 0005 frame: 15 ms per frame instead of 3, for ATE 0.092 instead of 0.094 m
-   there and 0.044 instead of 0.050 m on the easy synthetic ``dynamic``, seeds 0-2; a
-   single plain re-solve instead of the rejection rounds cost 6 ms and lost ``convoy``.
-   The figure asks for at most 5 ms for both detectors.)
+   outlier share with a trusted model too runs the check, and its re-solve, on nearly
+   every frame of a busy street for little gain; the budget is at most 5 ms for both
+   detectors: docs/decisions/0015-static-world-check.md.)
 2. The paper says the motion model tells static from dynamic; it does not say what to do
    when a large part of the image disagrees with it, nor when there is none. We decide:
    with a motion model that can be trusted (the previous frame was tracked normally, and
@@ -29,18 +26,17 @@ detector is):
    matches that pass the pose solve's chi-square test at it (`predicted_motion`), is the
    static world's motion when at least ``tracking.min_inliers`` and the share above agree
    with it. (The refinement may move it by more than the expected error below: the
-   prediction carries the last frame's estimation noise, 3-5 cm per frame where movers
-   hide most of the scene; on ``convoy`` seed 0 a refined motion 5.5 cm off, refused,
-   let the convoy's pull stand and become the next prediction.) The model's expected error
+   prediction carries the last frame's estimation noise where movers hide most of the
+   scene, and refusing such a refinement lets the movers' pull stand and become the next
+   prediction.) The model's expected error
    is ``dynamic.motion_prior_m`` (5 cm) and ``dynamic.motion_prior_deg`` (0.5 deg) per
    frame, distances in those units, the larger of the two (`motion_model_distance`); a
    robust solve outside it is suspect (step 1). At 10 Hz that is the error of a
    constant-velocity prediction (``a dt^2``) of a vehicle braking at 5 m/s^2 or changing
    its rate of turn by 50 deg/s^2; at EuRoC's 20 Hz it allows four times that. It must be
-   tight: a crowd crossing at 1.3 m/s pulled the solve of the stopped camera by 0.13 m per
-   frame (``crossing`` seed 0), within a bound of 0.25 m, and the estimate followed the
-   crowd for 1.7 m. Far points cannot tell such motions apart (0.13 m across is 5 px at
-   20 m on KITTI), so the prediction is tested directly rather than searched for.
+   tight: a looser bound let a crossing crowd pull the solve of a stopped camera along
+   with it (docs/decisions/0015-static-world-check.md). Far points cannot tell such motions apart, so the prediction is
+   tested directly rather than searched for.
 3. Without a trusted motion model (the second frame of a run, which has none; after a
    lost or recovered frame; a prediction too few matches agree with): sequential RANSAC
    over the stereo point matches finds the coherent motions (`coherent_motions`): rigid
@@ -56,9 +52,8 @@ detector is):
    world's motion, on its inlier points and the lines that pass their test at it. The
    detectors then judge every feature against that pose; the points that the robust solve
    (or another coherent motion) took and the static world's motion rejects are dynamic
-   too: they are what pulled the solve away. Without this, half the convoy's points went
-   unmarked (recall 0.52), became landmarks, and the local map they filled took the
-   camera along with the convoy after ten frames. When the static world itself exceeds the
+   too: they are what pulled the solve away; unmarked, they become landmarks, and the
+   local map they fill takes the camera along with the movers. When the static world itself exceeds the
    expected error (harder braking, a noisy velocity), the frame only pays for the RANSAC.
 
 RANSAC draws from a generator seeded with ``system.seed``: the same input gives the same
