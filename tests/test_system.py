@@ -8,8 +8,10 @@ With image 5 unreadable the run measured ATE 0.041 m (0.031 m intact); the bound
 """
 
 import dataclasses
+import errno
 import json
 import multiprocessing
+import re
 import shutil
 import sys
 import threading
@@ -22,7 +24,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from pld_slam.config import config_to_dict, load_config
 from pld_slam.datasets import StereoSequence, open_sequence
-from pld_slam.errors import ConfigError, PldSlamError, Terminated
+from pld_slam.errors import ConfigError, OutputError, PldSlamError, Terminated
 from pld_slam.eval import evaluate
 from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.run_summary import summarise_run
@@ -31,6 +33,7 @@ from pld_slam.io.run_output import FRAMES, LOOPS, PLOT, SUMMARY, TRAJECTORY_KITT
 from pld_slam.io.trajectory import read_kitti
 from pld_slam.loop.vocabulary import build_vocabulary
 from pld_slam.loop.vocabulary_training import training_descriptors
+from pld_slam.report import run_files
 from pld_slam.report.run_files import LOOP_COLUMNS, write_run_outputs
 from pld_slam.synth import write_sequence
 from pld_slam.system import STAGES, System
@@ -357,6 +360,19 @@ def test_a_run_stopped_before_the_first_frame_writes_only_the_summary(sequence, 
     assert [p.name for p in written] == [SUMMARY]
     assert read_summary(tmp_path)["frames"] == 0
     assert all(summary[key] is None for key in ACCURACY_KEYS)
+
+
+@pytest.mark.parametrize(("name", "writer"), [(PLOT, "plot_trajectory_top_view"), (SUMMARY, "write_summary"),
+                                              (LOOPS, "write_loop_candidates")])
+def test_a_run_file_that_cannot_be_written_is_an_error_naming_that_file(sequence, config, full_run, tmp_path,
+                                                                        monkeypatch, name, writer):
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")  # as a writer's own buffer flush: no file name
+
+    monkeypatch.setattr(run_files, writer, full_disk)
+    with pytest.raises(OutputError, match=f"^{re.escape(str(tmp_path / name))}: cannot write"):
+        write_run_outputs(tmp_path, full_run.trajectory(), summarise_run(sequence, full_run, config),
+                          sequence.groundtruth, "full disk")
 
 
 # --- determinism ----------------------------------------------------------------------

@@ -14,7 +14,7 @@ table, loops, plots, map), each in its format from `pld_slam.io`.
 
 import dataclasses
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
@@ -216,47 +216,38 @@ def write_run_outputs(
     when the run had a loop stage and a frame); the plot marks the closed loops and is
     skipped for fewer than 2 frames. A run with a map writes ``map.ply`` (``cloud``,
     `pld_slam.io.map_ply`) and ``keyframes.tum.txt`` (``keyframes``, when it has one). A
-    file that cannot be written raises `OutputError` naming it.
+    file that cannot be written raises `OutputError` naming it (the file, not the folder).
     """
     create_output_folder(out_dir)
-    try:
-        return _write_run_files(out_dir, estimate, summary, groundtruth, title, formats, records, cloud, keyframes)
-    except OSError as error:
-        raise OutputError.from_os_error(out_dir, error) from None
+    written: list[Path] = []
 
+    def write(name: str, writer: Callable[[Path], object]) -> None:
+        path = out_dir / name
+        try:
+            writer(path)
+        except OSError as error:
+            raise OutputError.from_os_error(path, error) from None
+        written.append(path)
 
-def _write_run_files(
-    out_dir: Path, estimate: Trajectory, summary: dict, groundtruth: Trajectory | None, title: str,
-    formats: tuple[str, ...], records: Sequence[FrameRecord], cloud: MapCloud | None, keyframes: Trajectory | None,
-) -> list[Path]:
-    """`write_run_outputs` into the existing ``out_dir``, OSErrors left to the caller."""
-    written = []
     if len(estimate) > 0:
         for fmt in formats:
-            write_trajectory(out_dir / TRAJECTORY_FILES[fmt], estimate, fmt)
-            written.append(out_dir / TRAJECTORY_FILES[fmt])
-    write_summary(out_dir / SUMMARY, summary)
-    written.append(out_dir / SUMMARY)
+            write(TRAJECTORY_FILES[fmt], lambda path, fmt=fmt: write_trajectory(path, estimate, fmt))
+    write(SUMMARY, lambda path: write_summary(path, summary))
     if records:
         table = frame_table(records)
-        write_frame_table(out_dir / FRAMES, table)
-        written.append(out_dir / FRAMES)
+        write(FRAMES, lambda path: write_frame_table(path, table))
         if len(table) >= 2:
-            plot_frame_times(out_dir / TIMING_PLOT, table, title=f"{title}: cost per frame")
-            written.append(out_dir / TIMING_PLOT)
+            write(TIMING_PLOT, lambda path: plot_frame_times(path, table, title=f"{title}: cost per frame"))
     loop = summary.get("loop")
     if loop is not None and len(estimate) > 0:
-        write_loop_candidates(out_dir / LOOPS, loop["candidates"], LOOP_COLUMNS)
-        written.append(out_dir / LOOPS)
+        write(LOOPS, lambda path: write_loop_candidates(path, loop["candidates"], LOOP_COLUMNS))
     if len(estimate) >= 2:
-        plot_trajectory_top_view(out_dir / PLOT, groundtruth, estimate, title=title, loop_edges=closed_loop_times(loop))
-        written.append(out_dir / PLOT)
+        write(PLOT, lambda path: plot_trajectory_top_view(path, groundtruth, estimate, title=title,
+                                                          loop_edges=closed_loop_times(loop)))
     if cloud is not None:
-        write_map_ply(out_dir / MAP_PLY, cloud)
-        written.append(out_dir / MAP_PLY)
+        write(MAP_PLY, lambda path: write_map_ply(path, cloud))
     if keyframes is not None and len(keyframes) > 0:
-        write_trajectory(out_dir / KEYFRAMES_TUM, keyframes, "tum")
-        written.append(out_dir / KEYFRAMES_TUM)
+        write(KEYFRAMES_TUM, lambda path: write_trajectory(path, keyframes, "tum"))
     return written
 
 
