@@ -5,6 +5,12 @@ Every error a user can cause (a bad folder, a malformed file, an invalid config)
 prints that line and exits with code 2.
 """
 
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised by `stop_on_sigterm` (the handler of the ``pld-slam`` command and of an
@@ -15,6 +21,36 @@ class Terminated(KeyboardInterrupt):
 def stop_on_sigterm(signum: int, frame) -> None:
     """A SIGTERM handler (``signal.signal(signal.SIGTERM, stop_on_sigterm)``): raise `Terminated`."""
     raise Terminated
+
+
+@dataclass
+class HeldInterrupt:
+    """What `deferred_interrupts` held: the first Ctrl-C (`KeyboardInterrupt`) or SIGTERM (`Terminated`) that
+    came during its block, or None."""
+
+    interrupt: KeyboardInterrupt | None = None
+
+
+@contextmanager
+def deferred_interrupts() -> Iterator[HeldInterrupt]:
+    """Hold Ctrl-C and SIGTERM while the block runs (a run's files being written): each is kept in the
+    yielded `HeldInterrupt` instead of raised, and the handlers before the block are back after it.
+    Outside the main thread (where Python cannot set handlers) it holds nothing."""
+    held = HeldInterrupt()
+    if threading.current_thread() is not threading.main_thread():
+        yield held
+        return
+
+    def hold(signum: int, frame) -> None:
+        if held.interrupt is None:
+            held.interrupt = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+    before = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield held
+    finally:
+        for signum, handler in before.items():
+            signal.signal(signum, handler)
 
 
 class PldSlamError(Exception):

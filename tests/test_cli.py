@@ -20,7 +20,7 @@ from conftest import REPO_ROOT, require
 from evo.tools import file_interface
 
 from pld_slam.datasets import open_sequence
-from pld_slam.errors import OutputError
+from pld_slam.errors import OutputError, stop_on_sigterm
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.io.run_output import PartialTrajectory
 from pld_slam.io.trajectory import (
@@ -32,6 +32,7 @@ from pld_slam.io.trajectory import (
     write_kitti,
     write_tum,
 )
+from pld_slam.report import run_files
 from pld_slam.synth.writer import write_sequence
 from pld_slam.system import STAGES, System
 from pld_slam.trajectory import Trajectory
@@ -517,6 +518,28 @@ def test_sigterm_mid_run_writes_the_trajectory_so_far_as_ctrl_c_does(tmp_path):
     assert 4 <= len(read_tum(out / "trajectory.tum.txt")) == summary["frames"] < 30
     assert summary["stop_reason"] == "terminated"
     assert not (out / "trajectory.partial.tum.txt").exists()
+
+
+def test_sigterm_while_the_files_are_written_waits_for_them_and_lists_them(synthetic_sequence, tmp_path, monkeypatch):
+    real_write_summary = run_files.write_summary
+
+    def write_summary_terminated_midway(path, summary):
+        os.kill(os.getpid(), signal.SIGTERM)  # the run is over; its files are being written
+        real_write_summary(path, summary)
+
+    monkeypatch.setattr(run_files, "write_summary", write_summary_terminated_midway)
+    before = signal.signal(signal.SIGTERM, stop_on_sigterm)  # as the pld-slam command does
+    try:
+        result = CliRunner().invoke(cli, ["run", str(synthetic_sequence), "--out", str(tmp_path / "r")])
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    assert result.exit_code == EXIT_TERMINATED, result.output
+    out = tmp_path / "r"
+    written = "trajectory.kitti.txt, trajectory.tum.txt, summary.json, frames.csv, timing.png, loops.csv, " \
+              "trajectory.png, map.ply, keyframes.tum.txt"
+    assert result.stderr.strip().splitlines()[-1].endswith(f"; wrote {written} in {out}/")
+    assert all((out / name).exists() for name in written.split(", "))
+    assert json.loads((out / "summary.json").read_text())["completed"] is True
 
 
 def pose_rows(path) -> int:

@@ -22,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pld_slam.datasets import StereoFrame, StereoSequence, with_cameras
-from pld_slam.errors import OutputError
+from pld_slam.errors import OutputError, deferred_interrupts
 from pld_slam.eval.dynamic_labels import MaskScores
 from pld_slam.eval.plots import plot_trajectory_top_view
 from pld_slam.eval.run_summary import summarise_run
@@ -160,14 +160,16 @@ def run_into_locked_folder(
     except KeyboardInterrupt as interrupt:
         interrupted = interrupt  # raised again below, once the files are written
     finally:
-        partial.close()
-        summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
-        world_map = system.result.map
-        written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
-                                    title=sequence.name, formats=formats, records=system.result.records,
-                                    cloud=None if world_map is None else map_cloud(world_map),
-                                    keyframes=None if world_map is None else world_map.keyframe_trajectory())
-        partial.discard()
+        with deferred_interrupts() as held:  # a Ctrl-C or SIGTERM now waits until every file is written
+            partial.close()
+            summary = summarise_run(sequence, system.result, run_config.config, run_config.sources, mask_scores)
+            world_map = system.result.map
+            written = write_run_outputs(out, system.result.trajectory(), summary, sequence.groundtruth,
+                                        title=sequence.name, formats=formats, records=system.result.records,
+                                        cloud=None if world_map is None else map_cloud(world_map),
+                                        keyframes=None if world_map is None else world_map.keyframe_trajectory())
+            partial.discard()
+    interrupted = interrupted or held.interrupt
     if interrupted is not None:
         raise RunInterrupted(interrupted_message(summary, n_frames, out, written)) from interrupted
     return summary
