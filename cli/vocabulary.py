@@ -47,9 +47,9 @@ def build_command(
     points = load_config(config_paths, overrides).points
     create_output_folder(out.parent)
     n_images = count_training_images(image_dirs, every)
-    with tqdm(total=n_images, desc="features", unit="image", leave=False) as bar:
+    with tqdm(total=n_images, desc="features", unit="image", leave=False, disable=None) as bar:
         descriptors = training_descriptors(image_dirs, points, every, bar.update)
-    with tqdm(total=depth, desc="clustering", unit="level", leave=False) as bar:
+    with tqdm(total=depth, desc="clustering", unit="level", leave=False, disable=None) as bar:
         vocabulary = build_vocabulary(descriptors, branching, depth, seed, progress=bar.update)
     vocabulary.save(out)
     click.echo(

@@ -142,3 +142,4 @@ def test_the_build_command_writes_the_same_file_for_the_same_images(tmp_path):
     vocabulary = Vocabulary.load(tmp_path / "a.npz")
     assert vocabulary.depth == 3 and vocabulary.n_words > 4
     assert "words" in result.output
+    assert "clustering" not in result.stderr and "\r" not in result.stderr  # no progress bars into a log
