@@ -38,11 +38,13 @@ late right camera agrees, rightly: its images do not change.
 Verdicts: ``agrees``; ``rows_disagree`` (agreement under `MIN_ROW_AGREEMENT`: out of
 sync, or not rectified) and ``few_matches`` (share under `MIN_KEYPOINT_SHARE`, the
 matches on the row: a scene too poor in texture or too far for depths) are warnings;
-``not_a_pair`` (both) is what a swapped pair, the same image twice or two unrelated
-cameras give, and `pld-slam run` ends with an error once its files are written: no depth
-of such a run can be right, and its share is a fifteenth of the lowest good pair's. A
-late camera stays a warning: its agreement is only 0.125 below the lowest good pair's,
-and a slightly misrectified rig still gives a usable trajectory.
+``not_a_pair`` (both) is what a swapped pair, the same image twice, two unrelated
+cameras or a right camera far out of sync give (two frames late: raw 0005 above, and
+KITTI 06 over its whole run, share 0.040 and ATE 9.9 m), and `pld-slam run` ends with
+an error once its files are written: no depth of such a run can be right, and its share
+is a fifth of the lowest good pair's or less. A late camera stays a warning: its
+agreement is only 0.125 below the lowest good pair's, and a slightly misrectified rig
+still gives a usable trajectory.
 """
 
 from collections.abc import Sequence
@@ -105,8 +107,8 @@ def stereo_pair_warning(verdict: str, share: float | None, agreement: float | No
         return (f"few stereo matches: {measures}; a scene too poor in texture or too far away for depths, "
                 "or a pair that does not match")
     if verdict == "not_a_pair":
-        return (f"not a stereo pair: {measures}; left and right swapped, the same images twice, or images of "
-                "two cameras that are not a rectified pair")
+        return (f"not a stereo pair: {measures}; left and right swapped, the same images twice, images far "
+                "out of sync, or of two cameras that are not a rectified pair")
     return None
 
 
