@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import yaml
 
-from pld_slam.errors import ConfigError
+from pld_slam.errors import ConfigError, read_user_text
 
 
 def _param(default: Any, doc: str, low: float | None = None, high: float | None = None) -> Any:
@@ -514,11 +514,7 @@ def apply_mapping(config: Config, data: Any, where: str) -> Config:
 
 def read_yaml(path: Path) -> Any:
     """Parsed content of a YAML file, or `ConfigError` naming the file."""
-    try:
-        text = Path(path).read_text()
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read config ({error.strerror})") from error
-    return parse_yaml(text, str(path))
+    return parse_yaml(read_user_text(path, ConfigError, "config"), str(path))
 
 
 def parse_yaml(text: str, where: str) -> Any:

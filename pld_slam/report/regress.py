@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pld_slam.datasets import open_sequence
-from pld_slam.errors import ConfigError, PldSlamError
+from pld_slam.errors import ConfigError, PldSlamError, read_user_text
 from pld_slam.report.cells import CellSpec, plan_cells
 from pld_slam.report.runner import run_cells
 from pld_slam.report.store import read_cell
@@ -89,9 +89,7 @@ def read_baseline(path: Path, missing_ok: bool = False) -> dict:
     if not path.exists() and missing_ok:
         return {"description": "", "tolerance": dict(DEFAULT_TOLERANCE), "cells": []}
     try:
-        baseline = json.loads(path.read_text())
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read baseline ({error.strerror})") from None
+        baseline = json.loads(read_user_text(path, ConfigError, "baseline"))
     except json.JSONDecodeError as error:
         raise ConfigError(f"{path}:{error.lineno}: not valid JSON ({error.msg})") from None
     if not isinstance(baseline, dict) or not isinstance(baseline.get("cells"), list):
