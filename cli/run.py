@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from pld_slam.datasets import BagOptions, open_sequence
-from pld_slam.errors import TrackingError
+from pld_slam.errors import DatasetError, TrackingError
 from pld_slam.io.run_output import DEFAULT_FORMATS
 from pld_slam.io.trajectory import FORMATS
 from pld_slam.report.run_files import run_and_write
@@ -57,6 +57,7 @@ def format_run_table(summary: dict) -> str:
         ("frames", f"{summary['frames']} of {summary['frames_in_sequence']}"
                    + ("" if summary["completed"] else f" (stopped: {summary['stop_reason']})")),
         ("tracking failures", str(len(summary["tracking_failures"]))),
+        stereo_pair_row(summary["stereo_pair"]),
         *skipped_frame_rows(summary["skipped_frames"]),
         ("ATE RMSE", number(summary["ate_rmse_m"], "{:.4f}", "m")),
         ("ATE RMSE after Sim(3)", number(summary["ate_sim3_rmse_m"], "{:.4f}", "m")),
@@ -99,6 +100,17 @@ def format_run_table(summary: dict) -> str:
     return "\n".join(f"{label:<{width}}{value}" for label, value in rows)
 
 
+def stereo_pair_row(stereo_pair: dict) -> tuple[str, str]:
+    """The report row of the stereo pair's check (`pld_slam.eval.stereo_pair`): its measures, or its warning."""
+    if stereo_pair["warning"] is not None:
+        return "stereo pair", f"WARNING: {stereo_pair['warning']}"
+    if stereo_pair["verdict"] == "unknown":
+        return "stereo pair", "not judged (no frame read)"
+    agreement = stereo_pair["row_agreement"]
+    on_row = "" if agreement is None else f", {100.0 * agreement:.0f} % of matches on their row"
+    return "stereo pair", f"agrees ({100.0 * stereo_pair['keypoint_share']:.0f} % of keypoints matched{on_row})"
+
+
 def kernel_compile_rows(seconds: float) -> list[tuple[str, str]]:
     """The report row of a first run on a machine, whose numba kernels were compiled before it (`pld_slam.kernels`);
     none when they came from the cache (a second at most)."""
@@ -139,6 +151,20 @@ def nothing_tracked(summary: dict) -> str | None:
     first = f" (frame {skipped[0]['index']}: {skipped[0]['reason']})" if skipped else ""
     return (f"tracked none of the {frames} frames{first}; likely causes: left and right images swapped or "
             "the same, images too dark (e.g. 12-bit data in 16-bit PNGs), or a calibration that does not fit them")
+
+
+def not_a_stereo_pair(summary: dict) -> str | None:
+    """The error of a run whose images are not a stereo pair (`pld_slam.eval.stereo_pair`: swapped, the same
+    image twice): the sequence and the check's warning; None for any other verdict, whose warning the table shows."""
+    stereo_pair = summary["stereo_pair"]
+    return f"{summary['root']}: {stereo_pair['warning']}" if stereo_pair["verdict"] == "not_a_pair" else None
+
+
+def warn_of_stereo_pair(summary: dict) -> None:
+    """A ``warning:`` line on stderr when the stereo pair's check warns short of an error (`not_a_stereo_pair`)."""
+    stereo_pair = summary["stereo_pair"]
+    if stereo_pair["warning"] is not None and stereo_pair["verdict"] != "not_a_pair":
+        click.echo(f"warning: {summary['root']}: {stereo_pair['warning']}", err=True)
 
 
 @click.command("run")
@@ -187,8 +213,10 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     trajectory.partial.N.tum.txt; other files there are kept. The folder is locked while
     the run goes (run.lock): a second run into it is refused. A run that tracks
     none of its frames writes its files, then ends with an error (exit 2) naming the
-    first failed frame and the likely causes. --rerun records the run into FILE.rrd for
-    the rerun viewer (open it with: rerun FILE.rrd).
+    first failed frame and the likely causes; so does a run on images that are not a
+    stereo pair (swapped, the same image twice). A pair whose matches leave their rows
+    (a right camera out of sync) gets a warning. --rerun records the run into FILE.rrd
+    for the rerun viewer (open it with: rerun FILE.rrd).
     """
     sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))
     overrides = overrides if scale is None else (*overrides, f"dataset.scale={scale}")
@@ -198,3 +226,7 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     failure = nothing_tracked(summary)
     if failure is not None:
         raise TrackingError(failure)
+    not_a_pair = not_a_stereo_pair(summary)
+    if not_a_pair is not None:
+        raise DatasetError(not_a_pair)
+    warn_of_stereo_pair(summary)

@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import yaml
 
-from pld_slam.errors import ConfigError
+from pld_slam.errors import ConfigError, read_user_text
 
 INT_MAX = 2**31 - 1
 """The largest value of an integer field without an upper bound of its own: OpenCV, numba kernels and index
@@ -525,11 +525,7 @@ def apply_mapping(config: Config, data: Any, where: str) -> Config:
 
 def read_yaml(path: Path) -> Any:
     """Parsed content of a YAML file, or `ConfigError` naming the file."""
-    try:
-        text = Path(path).read_text()
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read config ({error.strerror})") from error
-    return parse_yaml(text, str(path))
+    return parse_yaml(read_user_text(path, ConfigError, "config"), str(path))
 
 
 def parse_yaml(text: str, where: str) -> Any:

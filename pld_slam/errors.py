@@ -2,7 +2,8 @@
 
 Every error a user can cause (a bad folder, a malformed file, an invalid config) is a
 `PldSlamError` whose message is one line naming the file or key and the problem; the CLI
-prints that line and exits with code 2.
+prints that line and exits with code 2. `read_user_text` reads a user's text file so:
+bytes that are not UTF-8 or a file that cannot be read are such an error.
 """
 
 import signal
@@ -10,6 +11,7 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 
 
 class Terminated(KeyboardInterrupt):
@@ -80,3 +82,14 @@ class OutputError(PldSlamError):
     def from_os_error(cls, path, error: OSError) -> "OutputError":
         """The one-line error of ``error``, naming the file it names, else ``path``."""
         return cls(f"{error.filename or path}: cannot write ({error.strerror or error})")
+
+
+def read_user_text(path: Path, error: type[PldSlamError], what: str) -> str:
+    """The text of the user's file ``path`` (UTF-8, a byte-order mark dropped); ``error`` naming it when
+    it cannot be read (``cannot read WHAT (why)``) or is not UTF-8 text (the offset of the first bad byte)."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as decode:
+        raise error(f"{path}: not a text file (byte {decode.start} is not UTF-8)") from None
+    except OSError as os_error:
+        raise error(f"{path}: cannot read {what} ({os_error.strerror or os_error})") from None

@@ -50,7 +50,7 @@ from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence, require_cameras
 from pld_slam.errors import ConfigError, Terminated
 from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
-from pld_slam.frontend import StereoFeatures
+from pld_slam.frontend import StereoAgreement, StereoFeatures
 from pld_slam.geometry.se3 import inverse
 from pld_slam.kernels import compile_kernels
 from pld_slam.keyframes import KeyframeReason
@@ -95,6 +95,8 @@ class FrameRecord:
     map_size : keyframes, point landmarks and line landmarks alive once the frame was
         mapped ((0, 0, 0) without a map).
     rss_mb : the main process's resident memory then [MiB] (`pld_slam.timing.resident_mb`).
+    stereo : how well the frame's pair agrees with a rectified, synchronised rig (None when
+        its images could not be read).
     """
 
     index: int
@@ -111,6 +113,7 @@ class FrameRecord:
     keyframe: KeyframeReason | None = None
     map_size: tuple[int, int, int] = (0, 0, 0)
     rss_mb: float = 0.0
+    stereo: StereoAgreement | None = None
 
 
 @dataclass
@@ -253,7 +256,7 @@ class System:
             if not self.tracker.can_be_reference(features):
                 reason = (f"{self.sequence.frames.describe(index)}: too few features to start the trajectory on "
                           f"({len(features.points)} stereo points, {len(features.lines)} lines)")
-                return self._before_first_usable(index, timestamp, reason, start)
+                return self._before_first_usable(index, timestamp, reason, start, features.agreement)
             self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask, (frame.left, frame.right))
@@ -265,7 +268,7 @@ class System:
         stage_ms["total"] = ms_since(start)
         record = FrameRecord(index, timestamp, tracked.T_w_c, tracked.status, tracked.counts, stage_ms,
                              n_points=len(features.points), n_lines=len(features.lines),
-                             reference_keyframe=reference, T_c_r=T_c_r,
+                             reference_keyframe=reference, T_c_r=T_c_r, stereo=features.agreement,
                              keyframe=tracked.keyframe if self.local_mapping is not None else None)
         record = self._add(record, start)
         for observer in self._observers:
@@ -274,14 +277,17 @@ class System:
             self._keyframe_observer(self.result.map.keyframes[reference], self.result)
         return record
 
-    def _before_first_usable(self, index: int, timestamp: float, reason: str, start: float) -> FrameRecord:
-        """The record of a frame before the first usable one: the identity, LOST, ``reason`` as why it was skipped.
+    def _before_first_usable(
+        self, index: int, timestamp: float, reason: str, start: float, stereo: StereoAgreement | None = None,
+    ) -> FrameRecord:
+        """The record of a frame before the first usable one: the identity, LOST, ``reason`` as why it was skipped
+        (``stereo``: its pair's agreement, when it was read).
 
         The tracker never sees the frame, so the next frame is tracked as the first
         (the world); the record keeps the frame's row (module docstring).
         """
         record = FrameRecord(index, timestamp, np.eye(4), TrackingStatus.LOST, TrackingCounts(),
-                             {"total": ms_since(start)}, skipped_reason=reason)
+                             {"total": ms_since(start)}, skipped_reason=reason, stereo=stereo)
         return self._add(record, start)
 
     def _map_frame(

@@ -1,15 +1,21 @@
-"""Shared fixtures: where the real dataset extracts are.
+"""Shared fixtures: where the real dataset extracts are; hypothesis held to one sequence of examples.
 
 Tests that need real data take ``data_dir`` and skip with the reason when it is missing,
-so a fresh clone without ``../shared/data`` still passes.
+so a fresh clone without ``../shared/data`` still passes. Hypothesis draws its examples
+derandomized (from each test's own fixed seed) and keeps no example database, so every
+run, on CI or not, tries the same examples.
 """
 
 import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.load_profile("deterministic")
 
 
 @pytest.fixture(scope="session")

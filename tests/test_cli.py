@@ -21,6 +21,7 @@ from evo.tools import file_interface
 
 from pld_slam.datasets import open_sequence
 from pld_slam.errors import OutputError, stop_on_sigterm
+from pld_slam.eval.stereo_pair import stereo_pair_verdict
 from pld_slam.geometry.se3 import make_pose
 from pld_slam.io.run_output import PartialTrajectory
 from pld_slam.io.trajectory import (
@@ -39,7 +40,7 @@ from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import format_run_table, nothing_tracked, skipped_frame_rows
+from pld_slam_cli.run import format_run_table, not_a_stereo_pair, nothing_tracked, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -419,6 +420,56 @@ def test_a_run_that_tracks_no_frame_writes_its_files_and_ends_with_the_likely_ca
     assert error.endswith("; likely causes: left and right images swapped or the same, images too dark "
                           "(e.g. 12-bit data in 16-bit PNGs), or a calibration that does not fit them")
     assert (out / "trajectory.tum.txt").is_file() and (out / "summary.json").is_file()
+
+
+def right_camera_one_frame_late(sequence: Path) -> None:
+    """Make each right image of a KITTI-layout ``sequence`` the one of the frame before (frame 0 keeps its own)."""
+    rights = sorted((sequence / "image_1").glob("*.png"))
+    for earlier, later in reversed(list(zip(rights, rights[1:]))):
+        shutil.copyfile(earlier, later)
+
+
+@pytest.fixture(scope="module")
+def street(tmp_path_factory) -> Path:
+    """A static street of 10 frames at 320 x 240, enough corners for the stereo pair's check."""
+    folder = tmp_path_factory.mktemp("street") / "seq"
+    write_sequence(folder, "static", 10, size=(320, 240), seed=3)
+    return folder
+
+
+@pytest.mark.parametrize("late", [False, True])
+def test_a_run_warns_of_a_right_camera_one_frame_late_in_the_table_and_summary(street, tmp_path, late):
+    sequence = shutil.copytree(street, tmp_path / "seq")
+    if late:
+        right_camera_one_frame_late(sequence)
+    result = CliRunner().invoke(cli, ["run", str(sequence), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    stereo_pair = json.loads((tmp_path / "run" / "summary.json").read_text())["stereo_pair"]
+    row = next(line for line in result.output.splitlines() if line.startswith("stereo pair"))
+    if late:
+        assert stereo_pair["verdict"] == "rows_disagree"
+        assert stereo_pair["row_agreement"] < 0.86
+        assert stereo_pair["warning"].startswith("the stereo pair disagrees: ")
+        assert row.endswith(f"WARNING: {stereo_pair['warning']}")
+        assert f"warning: {sequence}: {stereo_pair['warning']}" in result.output.splitlines()
+    else:
+        assert stereo_pair["verdict"] == "agrees" and stereo_pair["warning"] is None
+        assert stereo_pair["row_agreement"] > 0.92 and stereo_pair["keypoint_share"] > 0.3
+        assert "agrees (" in row and "warning" not in result.output.lower()
+
+
+def test_the_stereo_pair_verdict_from_its_two_measures():
+    assert stereo_pair_verdict(0.30, 0.95) == "agrees"
+    assert stereo_pair_verdict(0.30, 0.70) == "rows_disagree"
+    assert stereo_pair_verdict(0.01, 0.95) == "few_matches"
+    assert stereo_pair_verdict(0.01, 0.60) == "not_a_pair" and stereo_pair_verdict(0.01, None) == "not_a_pair"
+    assert stereo_pair_verdict(None, None) == "unknown"
+
+
+def test_a_run_on_images_that_are_not_a_stereo_pair_ends_with_an_error_naming_the_sequence():
+    summary = {"root": "/data/seq", "stereo_pair": {"verdict": "not_a_pair", "warning": "not a stereo pair: ..."}}
+    assert not_a_stereo_pair(summary) == "/data/seq: not a stereo pair: ..."
+    assert not_a_stereo_pair({**summary, "stereo_pair": {"verdict": "rows_disagree", "warning": "x"}}) is None
 
 
 def test_a_run_fails_only_when_it_tracked_no_frame():

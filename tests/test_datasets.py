@@ -501,7 +501,7 @@ def test_kitti_raw_without_oxts_has_no_groundtruth(tmp_path):
         (rewrite("oxts/data/0000000001.txt", "49.0 8.4"), "0000000001.txt: OXTS packet has 2 fields"),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001", "2011-01-01 00:00:01.160000001",
                  "2011-01-01 00:00:02.100000001"),
-         "oxts/timestamps.txt: packet 1 is 60 ms from image 1, more than half a frame"),
+         "oxts/timestamps.txt: packet 1 is 60 ms from image 1 (of "),
         (rewrite("oxts/timestamps.txt", "2011-01-01 00:00:00.100000001"), "oxts/timestamps.txt: 1 times for 3"),
         (empty("image_01/data"), "image_01/data: no .png images"),
         (rewrite("../calib_cam_to_cam.txt", f"S_rect_00: {WIDTH} {HEIGHT}", f"R_rect_00: {numbers(np.eye(3))}",
@@ -807,7 +807,7 @@ def test_euroc_pairs_images_by_timestamp(tmp_path):
         csv.write_text("\n".join(lines[: dropped + 1] + lines[dropped + 2:]) + "\n")
     message = open_error(folder)
     assert "cam1/data/1403715273312142976.png: no image with the same timestamp in " in message
-    assert message.endswith("cam0/data.csv")
+    assert message.endswith(f"cam0/data.csv; 1403715273312142976.png is listed in {mav0 / 'cam1' / 'data.csv'}")
 
 
 def unpad_names(folder: Path) -> None:

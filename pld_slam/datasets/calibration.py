@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pld_slam.errors import DatasetError
+from pld_slam.errors import DatasetError, read_user_text
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
 
@@ -36,6 +36,10 @@ PINHOLE_ENTRIES = {(0, 0): "fx", (1, 1): "fy", (0, 2): "cx", (1, 2): "cy", (0, 3
 """The entries of a (3, 3) intrinsic or (3, 4) projection matrix a camera uses, by name
 (``tx = -fx * baseline`` of a right projection; ``tz``, the camera's offset along the
 optical axis, is 0 but in KITTI's colour cameras), for messages."""
+
+
+ROTATION_TOLERANCE = 1e-3
+"""Largest entry of ``R R^T - I`` accepted for a rotation matrix ``R`` of a calibration file."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,12 @@ class Calibration:
         self._check_finite(key, numbers, entries or {})
         return numbers
 
+    def rotation(self, key: str) -> np.ndarray:
+        """The (3, 3) rotation matrix of ``key``; a matrix that is not a rotation raises (`check_rotation`)."""
+        R = self.array(key, (3, 3))
+        check_rotation(self, key, R)
+        return R
+
     def _check_finite(self, key: str, numbers: np.ndarray, entries: Mapping[tuple[int, ...], str]) -> None:
         """Raise `DatasetError` naming the first number of ``key`` that is not finite."""
         not_finite = np.argwhere(~np.isfinite(numbers))
@@ -108,6 +118,14 @@ class Calibration:
         else:
             entry = key if numbers.size == 1 else f"{key}[{', '.join(map(str, index))}]"
         raise DatasetError(f"{self.path}: {entry} is {numbers[index]:g}, not a finite number")
+
+
+def check_rotation(calibration: Calibration, key: str, R: np.ndarray) -> None:
+    """Raise `DatasetError` naming ``key`` of ``calibration`` unless ``R`` (3, 3) is a rotation matrix
+    (entries of ``R R^T - I`` within `ROTATION_TOLERANCE`, determinant positive)."""
+    orthonormal = np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE)
+    if not orthonormal or np.linalg.det(R) < 0.0:
+        raise calibration.error(key, "is not a rotation matrix")
 
 
 def _require_file(path: Path, what: str) -> None:
@@ -123,7 +141,7 @@ def read_kitti_calibration(path: Path) -> Calibration:
     """
     _require_file(path, "KITTI calibration file")
     entries = {}
-    for line_number, line in enumerate(path.read_text().splitlines(), start=1):
+    for line_number, line in enumerate(read_user_text(path, DatasetError, "calibration").splitlines(), start=1):
         if not line.strip():
             continue
         key, colon, value = line.partition(":")
@@ -136,7 +154,7 @@ def read_kitti_calibration(path: Path) -> Calibration:
 def read_yaml_calibration(path: Path) -> Calibration:
     """Read a YAML calibration file (an OpenCV ``%YAML:1.0`` first line is dropped)."""
     _require_file(path, "YAML calibration file")
-    text = path.read_text()
+    text = read_user_text(path, DatasetError, "calibration")
     if text.startswith(_OPENCV_YAML_DIRECTIVE):
         text = text.partition("\n")[2]
     try:
@@ -165,12 +183,14 @@ def check_intrinsics(K: np.ndarray, size: tuple[int, int], source: Path | str, k
     """Raise `DatasetError` unless the pinhole intrinsics of ``K`` are plausible for ``size``.
 
     ``fx``, ``fy``, ``cx``, ``cy`` of ``K`` (a (3, 3) intrinsic or (3, 4) projection
-    matrix) must be finite, the focal lengths positive and the principal point inside the
-    ``(width, height)`` [px] image. The message names ``source`` (the calibration) and
+    matrix) must be finite, its third row start ``0 0 1``, the focal lengths positive and
+    the principal point inside the ``(width, height)`` [px] image. The message names ``source`` (the calibration) and
     the entry of ``key`` (``cx of P0``).
     """
     intrinsics = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
     _require_finite(source, key, intrinsics)
+    if not np.allclose(K[2, :3], (0.0, 0.0, 1.0)):
+        raise DatasetError(f"{source}: the third row of {key} starts {K[2, :3].tolist()}, expected [0, 0, 1]")
     for name in ("fx", "fy"):
         if not intrinsics[name] > 0.0:
             raise DatasetError(f"{source}: {name} of {key} is {intrinsics[name]:g}; a focal length must be positive")

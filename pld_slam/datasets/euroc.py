@@ -31,7 +31,7 @@ from pld_slam.datasets.base import FrameRate, ImageFiles, StereoSequence
 from pld_slam.datasets.calibration import check_intrinsics, read_yaml_calibration
 from pld_slam.datasets.files import groundtruth_at_frames, paired_images
 from pld_slam.datasets.rectify import StereoRectification, rectify_stereo
-from pld_slam.errors import DatasetError
+from pld_slam.errors import DatasetError, read_user_text
 from pld_slam.geometry.se3 import inverse
 from pld_slam.io.trajectory import read_euroc
 from pld_slam.trajectory import Trajectory
@@ -120,9 +120,13 @@ def _rectify_cameras(mav0: Path) -> tuple[StereoRectification, np.ndarray]:
         right.distortion,
         inverse(right.T_B_S) @ left.T_B_S,
         left.size,
-        source=left_yaml,
+        source=f"{left_yaml} and {right_yaml}",
     )
     return rectification, left.T_B_S @ rectification.T_raw_rect
+
+
+MAX_TIMESTAMP_NS = np.iinfo(np.int64).max
+"""The last time [ns] an int64 holds (April 2262)."""
 
 
 def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
@@ -134,14 +138,16 @@ def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
     if not path.is_file():
         raise DatasetError(f"{path}: image list not found")
     rows = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(read_user_text(path, DatasetError, "image list").splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = [field.strip() for field in line.split(",")]
-        if len(fields) != 2 or not fields[0].isdigit() or not fields[1]:
+        if len(fields) != 2 or not (fields[0].isascii() and fields[0].isdigit()) or not fields[1]:
             raise DatasetError(
                 f"{path}:{number}: expected 'timestamp [ns],filename', got {line[:60]!r}"
             )
+        if int(fields[0]) > MAX_TIMESTAMP_NS:
+            raise DatasetError(f"{path}:{number}: timestamp {fields[0][:30]} ns is past the year 2262 (int64 ns)")
         rows.append((int(fields[0]), fields[1], number))
     if not rows:
         raise DatasetError(f"{path}: no images listed")

@@ -10,7 +10,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from pld_slam.errors import DatasetError
+from pld_slam.errors import DatasetError, read_user_text
 from pld_slam.trajectory import Trajectory
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -86,13 +86,14 @@ def paired_images(
         What the key is (``name``, ``timestamp``), for messages.
 
     Raises `DatasetError` naming the first file (in key order) that has no partner,
-    and where its partner was looked for.
+    where its partner was looked for and, for a list file, the list that names it.
     """
     unpaired = sorted(left.keys() ^ right.keys())
     if unpaired:
         first = unpaired[0]
-        path, other = (left[first], sources[1]) if first in left else (right[first], sources[0])
-        raise DatasetError(f"{path}: no image with the same {key} in {other}")
+        path, own, other = (left[first], *sources) if first in left else (right[first], *reversed(sources))
+        listed = f"; {path.name} is listed in {own}" if own.is_file() else ""
+        raise DatasetError(f"{path}: no image with the same {key} in {other}{listed}")
     return list(left.values()), [right[k] for k in left]
 
 
@@ -185,7 +186,7 @@ def read_times(
         raise DatasetError(f"{path}: times file not found")
     numbered = [
         (number, line.strip())
-        for number, line in enumerate(path.read_text().splitlines(), start=1)
+        for number, line in enumerate(read_user_text(path, DatasetError, "times").splitlines(), start=1)
         if line.strip()
     ]
     times = np.array([_parse_time(path, number, text, parse_line) for number, text in numbered])

@@ -66,6 +66,7 @@ from pld_slam.datasets.calibration import (
     PINHOLE_ENTRIES,
     Calibration,
     check_intrinsics,
+    check_rotation,
     read_yaml_calibration,
     stereo_camera_from_projections,
 )
@@ -92,7 +93,6 @@ GROUNDTRUTH_MAX_OFFSET = 0.005
 written at the frame times matches exactly up to rounding; 5 ms also admits 200 Hz
 motion capture."""
 
-_ROTATION_TOLERANCE = 1e-3  # largest |R R^T - I| entry accepted for ``R``
 _DISTORTION_SIZES = (4, 5)
 
 
@@ -200,7 +200,7 @@ def _gt_from_left(calibration: Calibration) -> np.ndarray:
     T = calibration.array("T_gt_left", (4, 4))
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise calibration.error("T_gt_left", "must end with the row 0 0 0 1")
-    _check_rotation(calibration, "T_gt_left", T[:3, :3])
+    check_rotation(calibration, "T_gt_left", T[:3, :3])
     return T
 
 
@@ -223,20 +223,6 @@ def _distortion(calibration: Calibration, key: str) -> np.ndarray:
     return coefficients
 
 
-def _rotation(calibration: Calibration, key: str) -> np.ndarray:
-    """The (3, 3) rotation matrix of ``key``; a matrix that is not a rotation raises."""
-    R = calibration.array(key, (3, 3))
-    _check_rotation(calibration, key, R)
-    return R
-
-
-def _check_rotation(calibration: Calibration, key: str, R: np.ndarray) -> None:
-    """Raise `DatasetError` naming ``key`` unless ``R`` (3, 3) is a rotation matrix."""
-    orthonormal = np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOLERANCE)
-    if not orthonormal or np.linalg.det(R) < 0.0:
-        raise calibration.error(key, "is not a rotation matrix")
-
-
 def _rectification(calibration: Calibration) -> StereoRectification:
     """The `StereoRectification` of a raw rig described by ``calibration``."""
     size = _image_size(calibration)
@@ -245,7 +231,7 @@ def _rectification(calibration: Calibration) -> StereoRectification:
         _distortion(calibration, "left.distortion"),
         _intrinsics(calibration, "right.K", size),
         _distortion(calibration, "right.distortion"),
-        make_pose(_rotation(calibration, "R"), calibration.array("t", (3,))),
+        make_pose(calibration.rotation("R"), calibration.array("t", (3,))),
         size,
         source=calibration.path,
     )

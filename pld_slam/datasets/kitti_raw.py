@@ -49,7 +49,7 @@ from pld_slam.datasets.calibration import (
 from pld_slam.datasets.files import natural_sorted, paired_image_folders, read_times
 from pld_slam.datasets.kitti_cameras import CameraPair, chosen_pair
 from pld_slam.datasets.kitti_odometry import FRAME_RATE
-from pld_slam.errors import DatasetError
+from pld_slam.errors import DatasetError, read_user_text
 from pld_slam.geometry.se3 import interpolate_poses, inverse, make_pose
 from pld_slam.trajectory import Trajectory
 
@@ -88,7 +88,8 @@ def load(folder: Path, cameras: str = "auto") -> StereoSequence:
     folder = folder.resolve()
     pair = chosen_pair(*camera_pairs(folder), cameras)
     left_paths, right_paths = paired_image_folders(pair.left, pair.right, (".png",))
-    timestamps = read_times(pair.left.parent / "timestamps.txt", len(left_paths), parse_line=datetime_seconds)
+    image_times_path = pair.left.parent / "timestamps.txt"
+    timestamps = read_times(image_times_path, len(left_paths), parse_line=datetime_seconds)
     cam_to_cam = read_kitti_calibration(folder.parent / "calib_cam_to_cam.txt")
     width, height = cam_to_cam.array(_SIZE_KEYS[pair.name], (2,)).astype(int)
     P_left, P_right = (cam_to_cam.array(key, (3, 4), PINHOLE_ENTRIES) for key in pair.keys)
@@ -101,7 +102,7 @@ def load(folder: Path, cameras: str = "auto") -> StereoSequence:
         timestamps=timestamps,
         frame_rate=FRAME_RATE,
         frames=ImageFiles(left_paths, right_paths, camera.size, pair.colour),
-        groundtruth=_groundtruth(folder, timestamps, cam_to_cam, camera_from_reference(P_left)),
+        groundtruth=_groundtruth(folder, timestamps, image_times_path, cam_to_cam, camera_from_reference(P_left)),
         cameras=pair.name,
     )
 
@@ -118,11 +119,12 @@ def datetime_seconds(text: str) -> float:
 
 
 def _groundtruth(
-    folder: Path, timestamps: np.ndarray, cam_to_cam: Calibration, T_c_cam0rect: np.ndarray
+    folder: Path, timestamps: np.ndarray, image_times_path: Path, cam_to_cam: Calibration, T_c_cam0rect: np.ndarray
 ) -> Trajectory | None:
     """``T_w_c`` of the pair's rectified left camera ``c`` from OXTS, first = identity; None without OXTS.
 
-    ``T_c_cam0rect`` (4, 4) is rectified cam0's pose in ``c`` (the identity for the grey pair).
+    ``timestamps`` are the image times, read from ``image_times_path``; ``T_c_cam0rect``
+    (4, 4) is rectified cam0's pose in ``c`` (the identity for the grey pair).
     """
     oxts_folder = folder / "oxts" / "data"
     if not oxts_folder.is_dir():
@@ -133,7 +135,7 @@ def _groundtruth(
             f"{oxts_folder}: {len(packet_paths)} OXTS packets for {len(timestamps)} frames"
         )
     T_w_imu = oxts_poses(np.array([read_oxts_pose_fields(path) for path in packet_paths]))
-    T_w_imu = _at_image_times(T_w_imu, folder / "oxts" / "timestamps.txt", timestamps)
+    T_w_imu = _at_image_times(T_w_imu, folder / "oxts" / "timestamps.txt", timestamps, image_times_path)
     T_imu0_imu = inverse(T_w_imu[0]) @ T_w_imu
     T_c_imu = T_c_cam0rect @ cam0_rect_from_imu(folder.parent, cam_to_cam)
     # The exact matrix inverse, not se3.inverse: the calibration rotations are printed to
@@ -142,10 +144,12 @@ def _groundtruth(
     return Trajectory(timestamps, T_w_c)
 
 
-def _at_image_times(T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarray) -> np.ndarray:
+def _at_image_times(
+    T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarray, image_times_path: Path
+) -> np.ndarray:
     """OXTS poses (N, 4, 4) moved from their packets' times (``times_path``) to the image
-    times (N,) [s] (module docstring); unchanged when ``times_path`` does not exist or there
-    is a single frame (nothing to interpolate between)."""
+    times (N,) [s] (read from ``image_times_path``; module docstring); unchanged when
+    ``times_path`` does not exist or there is a single frame (nothing to interpolate between)."""
     if not times_path.is_file() or len(image_times) < 2:
         return T_w_imu
     packet_times = read_times(times_path, len(image_times), parse_line=datetime_seconds)
@@ -153,7 +157,8 @@ def _at_image_times(T_w_imu: np.ndarray, times_path: Path, image_times: np.ndarr
     if gap.max() > 0.5 / FRAME_RATE.hz:
         frame = int(np.argmax(gap))
         raise DatasetError(
-            f"{times_path}: packet {frame} is {gap[frame] * 1e3:.0f} ms from image {frame}, more than half a frame"
+            f"{times_path}: packet {frame} is {gap[frame] * 1e3:.0f} ms from image {frame} "
+            f"(of {image_times_path}), more than half a frame"
         )
     return interpolate_poses(packet_times, T_w_imu, image_times)
 
@@ -163,7 +168,7 @@ def read_oxts_pose_fields(path: Path) -> np.ndarray:
 
     Raises `DatasetError` naming the file (and the field) when they are not six finite numbers.
     """
-    fields = path.read_text().split()[: len(_OXTS_POSE_FIELDS)]
+    fields = read_user_text(path, DatasetError, "OXTS packet").split()[: len(_OXTS_POSE_FIELDS)]
     try:
         values = np.array(fields, dtype=np.float64)
     except ValueError:
@@ -215,7 +220,7 @@ def cam0_rect_from_imu(calibration_folder: Path, cam_to_cam: Calibration) -> np.
     """(4, 4) ``T_cam0rect_imu = R_rect_00 T_cam0_velo T_velo_imu`` from the ``calib_*.txt``."""
     velo_to_cam = read_kitti_calibration(calibration_folder / "calib_velo_to_cam.txt")
     imu_to_velo = read_kitti_calibration(calibration_folder / "calib_imu_to_velo.txt")
-    T_cam0rect_cam0 = make_pose(cam_to_cam.array("R_rect_00", (3, 3)), np.zeros(3))
-    T_cam0_velo = make_pose(velo_to_cam.array("R", (3, 3)), velo_to_cam.array("T", (3,)))
-    T_velo_imu = make_pose(imu_to_velo.array("R", (3, 3)), imu_to_velo.array("T", (3,)))
+    T_cam0rect_cam0 = make_pose(cam_to_cam.rotation("R_rect_00"), np.zeros(3))
+    T_cam0_velo = make_pose(velo_to_cam.rotation("R"), velo_to_cam.array("T", (3,)))
+    T_velo_imu = make_pose(imu_to_velo.rotation("R"), imu_to_velo.array("T", (3,)))
     return T_cam0rect_cam0 @ T_cam0_velo @ T_velo_imu

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from pld_slam.datasets.calibration import stereo_camera_from_projections
+from pld_slam.errors import DatasetError
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import make_pose
 
@@ -87,7 +88,7 @@ def rectify_stereo(
     distortion_right: np.ndarray,
     T_right_left: np.ndarray,
     image_size: tuple[int, int],
-    source: Path,
+    source: Path | str,
 ) -> StereoRectification:
     """Rectify a calibrated stereo rig.
 
@@ -102,20 +103,24 @@ def rectify_stereo(
         ``p_right = R p_left + t`` [m].
     image_size : tuple of int
         ``(width, height)`` of the raw images, also the rectified size.
-    source : Path
-        The calibration file, named in errors.
+    source : Path or str
+        The calibration file (or files), named in errors; a rig OpenCV cannot rectify (the
+        two cameras at one place) raises `DatasetError` naming it.
     """
-    R1, R2, P1, P2, *_ = cv2.stereoRectify(
-        K_left,
-        distortion_left,
-        K_right,
-        distortion_right,
-        image_size,
-        T_right_left[:3, :3],
-        T_right_left[:3, 3].reshape(3, 1),
-        flags=cv2.CALIB_ZERO_DISPARITY,
-        alpha=RECTIFY_ALPHA,
-    )
+    try:
+        R1, R2, P1, P2, *_ = cv2.stereoRectify(
+            K_left,
+            distortion_left,
+            K_right,
+            distortion_right,
+            image_size,
+            T_right_left[:3, :3],
+            T_right_left[:3, 3].reshape(3, 1),
+            flags=cv2.CALIB_ZERO_DISPARITY,
+            alpha=RECTIFY_ALPHA,
+        )
+    except cv2.error as error:
+        raise DatasetError(f"{source}: OpenCV cannot rectify this rig ({error.err})") from None
     return rectification_of(
         RectifiedView(K_left, distortion_left, R1, P1), RectifiedView(K_right, distortion_right, R2, P2),
         image_size, source,

@@ -17,6 +17,7 @@ from pld_slam.errors import TrajectoryError
 from pld_slam.eval.dynamic_labels import LabelCounts, MaskScores
 from pld_slam.eval.loop_truth import score_loops
 from pld_slam.eval.metrics import EvalResult, evaluate
+from pld_slam.eval.stereo_pair import stereo_pair_summary
 from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.system import STAGES, RunResult
 from pld_slam.tracking.tracker import TrackingStatus
@@ -259,6 +260,7 @@ def summarise_run(
         "frame_rate": {"hz": sequence.frame_rate.hz, "source": sequence.frame_rate.source},
         "disparity_offset": None if result.disparity_offset is None else result.disparity_offset.as_dict(),
         "world_frame": world_frame(result),
+        "stereo_pair": stereo_pair_summary(records),
         **accuracy_from_world_frame(sequence, result),
         "features_median": {
             "stereo_points": _median_or_none([r.n_points for r in records]),

@@ -21,15 +21,19 @@ from pld_slam.frontend.ggs import ggs_and_place_descriptors
 from pld_slam.frontend.lines import StereoLines, detect_image_lines, match_stereo_lines
 from pld_slam.frontend.points import (
     LeftKeypoints,
+    StereoAgreement,
     StereoPoints,
     detect_image_points,
     left_keypoints,
+    stereo_agreement,
     stereo_match_indices,
     stereo_points,
 )
 from pld_slam.geometry.camera import StereoCamera
 
-__all__ = ["LeftKeypoints", "StereoFeatures", "StereoLines", "StereoPoints", "extract_stereo_features"]
+__all__ = [
+    "LeftKeypoints", "StereoAgreement", "StereoFeatures", "StereoLines", "StereoPoints", "extract_stereo_features",
+]
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,8 @@ class StereoFeatures:
     observes points through it. ``ggs`` is the GGS descriptor of the left image,
     (2, cells, bins) uint8 (`pld_slam.frontend.ggs`), or None when it was not asked for;
     ``place_ggs`` the one place recognition compares (`pld_slam.frontend.ggs.ggs_and_place_descriptors`).
+    ``agreement`` says how well the pair agrees with a rectified, synchronised rig
+    (`pld_slam.frontend.points.stereo_agreement`).
     """
 
     points: StereoPoints
@@ -47,6 +53,7 @@ class StereoFeatures:
     ggs: np.ndarray | None = None
     place_ggs: np.ndarray | None = None
     keypoints: LeftKeypoints = field(default_factory=LeftKeypoints.empty)
+    agreement: StereoAgreement = field(default_factory=StereoAgreement)
 
 
 def extract_stereo_features(
@@ -78,10 +85,12 @@ def extract_stereo_features(
         index, disparity, u_right = stereo_match_indices(left_points, right_points, camera, points_config)
         points = stereo_points(left_points, index, disparity, u_right, camera)
         keypoints = left_keypoints(left_points, index, u_right)
+        agreement = stereo_agreement(left_points, right_points, len(index), camera, points_config)
         ggs, place_ggs = (None, None) if ggs_job is None else ggs_job.result()
         if not line_jobs:
             return StereoFeatures(points=points, lines=StereoLines.empty(), ggs=ggs, place_ggs=place_ggs,
-                                  keypoints=keypoints)
+                                  keypoints=keypoints, agreement=agreement)
         left_lines, right_lines = (job.result() for job in line_jobs)
     lines = match_stereo_lines(left_lines, right_lines, camera, lines_config)
-    return StereoFeatures(points=points, lines=lines, ggs=ggs, place_ggs=place_ggs, keypoints=keypoints)
+    return StereoFeatures(points=points, lines=lines, ggs=ggs, place_ggs=place_ggs, keypoints=keypoints,
+                          agreement=agreement)

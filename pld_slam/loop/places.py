@@ -70,7 +70,7 @@ import numpy as np
 from pld_slam.config import Config, GgsConfig, PointsConfig
 from pld_slam.datasets.base import read_grey
 from pld_slam.datasets.files import natural_sorted
-from pld_slam.errors import DatasetError, PldSlamError
+from pld_slam.errors import DatasetError, PldSlamError, read_user_text
 from pld_slam.frontend.ggs import GgsDatabase, ggs_and_place_descriptors, ggs_distances
 from pld_slam.frontend.points import detect_image_points
 from pld_slam.loop.bow_detector import BowDatabase
@@ -245,10 +245,7 @@ def load_ground_truth(path: Path, n_images: int) -> np.ndarray:
 
 def _read_text_matrix(path: Path) -> np.ndarray:
     """A matrix (R, C) float64 written as text rows of numbers separated by commas or white space."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as error:
-        raise DatasetError(f"{path}: cannot read ground truth ({error})") from error
+    text = read_user_text(path, DatasetError, "ground truth")
     rows = []
     for line_number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()

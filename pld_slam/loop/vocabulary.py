@@ -142,13 +142,16 @@ class Vocabulary:
         path = Path(path)
         if not path.is_file():
             raise PldSlamError(f"{path}: no such vocabulary file (build one with `pld-slam vocabulary build`)")
+        keys = ("version", "centres", "children", "level", "word", "idf")
         try:
             with np.load(path) as data:
-                if int(data["version"]) != _FORMAT_VERSION:
-                    raise PldSlamError(f"{path}: vocabulary format {int(data['version'])}, expected {_FORMAT_VERSION}")
-                vocabulary = cls(*(data[key] for key in ("centres", "children", "level", "word", "idf")))
-        except (OSError, ValueError, KeyError) as error:
-            raise PldSlamError(f"{path}: not a pld-slam vocabulary ({error})") from None
+                version, *arrays = (data[key] for key in keys)
+            version = int(version)
+        except Exception as error:  # a damaged file: numpy's, zipfile's, zlib's errors, EOFError, ... (issue 43)
+            raise PldSlamError(f"{path}: not a pld-slam vocabulary ({type(error).__name__}: {error})") from None
+        if version != _FORMAT_VERSION:
+            raise PldSlamError(f"{path}: vocabulary format {version}, expected {_FORMAT_VERSION}")
+        vocabulary = cls(*arrays)
         vocabulary.check(path)
         return vocabulary
 

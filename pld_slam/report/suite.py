@@ -21,7 +21,7 @@ from importlib.resources import files
 from pathlib import Path
 
 from pld_slam.config import Config, apply_mapping, parse_override, parse_yaml
-from pld_slam.errors import ConfigError
+from pld_slam.errors import ConfigError, read_user_text
 
 BUILTIN_SUITES = ("table1", "lines", "keyframes", "loop")
 """The suites shipped as ``pld_slam.configs/ablations/NAME.yaml``."""
@@ -79,10 +79,7 @@ def suite_source(name_or_path: str) -> tuple[str, str, str]:
         raise ConfigError(
             f"{name_or_path}: no such suite (built-in: {', '.join(BUILTIN_SUITES)}; or a YAML file)"
         )
-    try:
-        return path.stem, path.read_text(), str(path)
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read suite ({error.strerror})") from error
+    return path.stem, read_user_text(path, ConfigError, "suite"), str(path)
 
 
 def load_suite(name_or_path: str) -> Suite:
