@@ -129,7 +129,7 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
     say which camera the estimate is of; the sequence folder does.
     """
     est_format = detect_format(est) if fmt == "auto" else fmt
-    estimate = read_trajectory(est, est_format)
+    estimate = read_trajectory(est, fmt)
     if gt.is_dir():
         sequence = open_sequence(gt)
         if sequence.groundtruth is None:
@@ -146,7 +146,7 @@ def load_pair(gt: Path, est: Path, fmt: str) -> tuple[Trajectory, Trajectory, bo
             f"cannot pair {gt} ({gt_format}) with {est} ({est_format}): KITTI files have no "
             "timestamps; give both in KITTI format, or the sequence folder as GT"
         )
-    return read_trajectory(gt, gt_format), estimate, gt_format == "kitti"
+    return read_trajectory(gt, fmt), estimate, gt_format == "kitti"
 
 
 @click.command("eval")

@@ -356,6 +356,14 @@ def test_ground_truth_csv_with_text_names_the_file_and_line(tmp_path):
         load_ground_truth(path, 2)
 
 
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_ground_truth_csv_with_a_number_that_is_not_finite_names_the_file_and_line(tmp_path, value):
+    path = tmp_path / "gt.csv"
+    path.write_text(f"0,0\n{value},0\n")  # a NaN is not 0: it would have marked a pair
+    with pytest.raises(DatasetError, match=r"gt.csv:2: not a finite number"):
+        load_ground_truth(path, 2)
+
+
 def test_ground_truth_csv_with_ragged_rows_is_an_error(tmp_path):
     path = tmp_path / "gt.csv"
     path.write_text("0,0,0\n0,0\n0,0,0\n")

@@ -248,3 +248,15 @@ def test_evo_cli_loads_our_kitti_00_files_and_agrees_on_ate(data_dir, tmp_path):
         evo_rmse = evo_ape_rmse(tmp_path, fmt, tmp_path / f"gt.{fmt}", tmp_path / f"est.{fmt}")
         assert evo_rmse == pytest.approx(ours, abs=1e-6), fmt  # evo prints 6 decimals
     assert round(ours, 2) == 1.30
+
+
+def test_a_comma_separated_tum_file_is_read_as_euroc_and_the_error_says_so(tmp_path):
+    path = tmp_path / "tum_with_commas.txt"
+    path.write_text("1.0,0,0,0,0,0,0,1\n2.0,1,0,0,0,0,0,1\n")
+    with pytest.raises(TrajectoryError, match=re.escape(
+            f"{path}:1: timestamp must be integer nanoseconds: '1.0' (read as EuRoC, for its comma-separated "
+            "columns; a TUM file separates them by spaces)")):
+        read_trajectory(path)
+    with pytest.raises(TrajectoryError) as asked_for_euroc:
+        read_trajectory(path, "euroc")
+    assert "read as EuRoC" not in str(asked_for_euroc.value)  # the user named the format

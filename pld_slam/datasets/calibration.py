@@ -123,7 +123,8 @@ class Calibration:
 def check_rotation(calibration: Calibration, key: str, R: np.ndarray) -> None:
     """Raise `DatasetError` naming ``key`` of ``calibration`` unless ``R`` (3, 3) is a rotation matrix
     (entries of ``R R^T - I`` within `ROTATION_TOLERANCE`, determinant positive)."""
-    orthonormal = np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE)
+    orthonormal = bool(np.all(np.abs(R) <= 1.0 + ROTATION_TOLERANCE)) and np.allclose(R @ R.T, np.eye(3),
+                                                                                 atol=ROTATION_TOLERANCE)
     if not orthonormal or np.linalg.det(R) < 0.0:
         raise calibration.error(key, "is not a rotation matrix")
 

@@ -148,9 +148,17 @@ def _associate_by_time(
         gt, est = associate_trajectories(
             _to_evo(groundtruth), _to_evo(estimate), max_diff=max_diff
         )
-    except SyncException as exc:
-        raise TrajectoryError(f"estimate and ground truth: {exc}") from None
+    except SyncException:
+        raise TrajectoryError(
+            f"no estimate time is within {max_diff:g} s of a ground-truth time (estimate {time_span(estimate)}; "
+            f"ground truth {time_span(groundtruth)})"
+        ) from None
     return _from_evo(gt), _from_evo(est)
+
+
+def time_span(trajectory: Trajectory) -> str:
+    """``N poses, FIRST to LAST s``: what a trajectory's timestamps cover, for messages."""
+    return f"{len(trajectory)} poses, {trajectory.timestamps[0]:.3f} to {trajectory.timestamps[-1]:.3f} s"
 
 
 def associate(

@@ -328,14 +328,23 @@ def read_trajectory(path, fmt: str = "auto", timestamps: np.ndarray | None = Non
 
     ``timestamps`` (N,) [s] are only for KITTI files, which carry none.
     """
-    if fmt == "auto":
+    detected = fmt == "auto"
+    if detected:
         fmt = detect_format(path)
     _check_format(fmt, path)
     if fmt == "kitti":
         return read_kitti(path, timestamps)
     if timestamps is not None:
         raise TrajectoryError(f"{path}: timestamps can only be given for a KITTI file, not {fmt}")
-    return read_tum(path) if fmt == "tum" else read_euroc(path)
+    if fmt == "tum":
+        return read_tum(path)
+    try:
+        return read_euroc(path)
+    except TrajectoryError as error:
+        if not detected:
+            raise
+        raise TrajectoryError(f"{error} (read as EuRoC, for its comma-separated columns; a TUM file separates "
+                              "them by spaces)") from None
 
 
 def write_trajectory(path, traj: Trajectory, fmt: str) -> None:

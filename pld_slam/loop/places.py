@@ -59,6 +59,7 @@ What the issue leaves open, and what we decide:
 """
 
 import functools
+import math
 import re
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -255,6 +256,8 @@ def _read_text_matrix(path: Path) -> np.ndarray:
             row = [float(value) for value in re.split(r"[,\s]+", line.strip(", \t"))]
         except ValueError:
             raise DatasetError(f"{path}:{line_number}: not a row of numbers: {line[:60]!r}") from None
+        if not all(math.isfinite(value) for value in row):
+            raise DatasetError(f"{path}:{line_number}: not a finite number in {line[:60]!r} (a pair is 0 or 1)")
         if rows and len(row) != len(rows[0]):
             raise DatasetError(f"{path}:{line_number}: {len(row)} values, the first row has {len(rows[0])}")
         rows.append(row)
