@@ -238,6 +238,14 @@ def test_a_damaged_vocabulary_is_an_error_naming_it(tmp_path):
         Vocabulary.load(path)
 
 
+def test_a_text_file_given_as_vocabulary_is_an_error_naming_it_without_numpy_advice(tmp_path):
+    path = tmp_path / "vocabulary.txt"
+    path.write_text("not a vocabulary\n")
+    with pytest.raises(PldSlamError, match=f"^{path}: not a pld-slam vocabulary") as caught:
+        Vocabulary.load(path)
+    assert "allow_pickle" not in str(caught.value)
+
+
 def tum_text() -> str:
     return "".join(f"{0.1 * i:.1f} {0.2 * i} 0.1 0 0 0 0.0998 0.995\n" for i in range(4))
 

@@ -61,6 +61,10 @@ class BowVector:
         return cls(np.zeros(0, dtype=np.int64), np.zeros(0))
 
 
+_NPZ_MAGIC = b"PK\x03\x04"
+"""The first bytes of an .npz file (a zip archive, `numpy.savez_compressed`)."""
+
+
 @dataclass(frozen=True)
 class Vocabulary:
     """A vocabulary tree (module docstring). Node 0 is the root.
@@ -143,6 +147,10 @@ class Vocabulary:
         if not path.is_file():
             raise PldSlamError(f"{path}: no such vocabulary file (build one with `pld-slam vocabulary build`)")
         keys = ("version", "centres", "children", "level", "word", "idf")
+        with path.open("rb") as file:
+            if file.read(4) != _NPZ_MAGIC:
+                raise PldSlamError(f"{path}: not a pld-slam vocabulary (not the .npz archive that "
+                                   "`pld-slam vocabulary build` writes)")
         try:
             with np.load(path) as data:
                 version, *arrays = (data[key] for key in keys)
