@@ -6,6 +6,7 @@ needs a display and never touches the global pyplot state of the caller. Each pl
 ``plot_*`` function writing it as a PNG.
 """
 
+import textwrap
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from pld_slam.trajectory import Trajectory
 
 FIGURE_SIZE_IN = (6.4, 4.8)
 DPI = 100
+WHY_NOT_WIDTH = 80
+"""Characters per line of the reason an estimate is drawn unaligned (a plot title or legend entry)."""
 ALIGNMENT_NAMES = {"se3": "SE(3)-aligned", "sim3": "Sim(3)-aligned", "none": "not aligned"}
 """How the estimate's legend entry and the title name each ``align`` of `pld_slam.eval.metrics`."""
 GROUND_TRUTH_ZORDER = 3
@@ -136,13 +139,13 @@ def aligned_if_possible(
     groundtruth: Trajectory, estimate: Trajectory, align: str = "se3", by_index: bool = False, max_diff: float = 0.01
 ) -> tuple[Trajectory, str | None]:
     """``estimate`` aligned onto ``groundtruth`` (`aligned_onto`) and None, or, when too few of its
-    poses match the ground truth to align it, ``estimate`` as it is and why."""
+    poses match the ground truth to align it, ``estimate`` as it is and why (lines of `WHY_NOT_WIDTH`)."""
     if len(estimate) < 2:
         return estimate, "fewer than 2 poses"
     try:
         return aligned_onto(groundtruth, estimate, align, by_index, max_diff), None
     except TrajectoryError as error:
-        return estimate, str(error)
+        return estimate, textwrap.fill(str(error), WHY_NOT_WIDTH)
 
 
 def draw_groundtruth_top_view(axes, groundtruth: Trajectory) -> np.ndarray:
