@@ -4,6 +4,10 @@ Every error a user can cause (a bad folder, a malformed file, an invalid config)
 `PldSlamError` whose message is one line naming the file or key and the problem; the CLI
 prints that line and exits with code 2. `read_user_text` reads a user's text file so:
 bytes that are not UTF-8 or a file that cannot be read are such an error.
+
+Stopping is the other family: Ctrl-C (`KeyboardInterrupt`) and SIGTERM (`Terminated`, raised
+by `stop_on_sigterm`) stop a run, which still writes its files; `deferred_interrupts` holds
+both while those files are written.
 """
 
 import signal
