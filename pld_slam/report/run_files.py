@@ -83,7 +83,8 @@ def run_and_write(
     A sequence with moving-object masks has its dynamic labels scored against them
     (`MaskScores`), the summary's precision and recall. ``rerun`` an ``.rrd`` file the run is
     recorded to for the rerun viewer (`pld_slam.report.rerun_recording`), opened before the
-    first frame and finished when the run ends, however it ends.
+    output folder is touched (a missing rerun SDK stops the run first) and finished when the
+    run ends, however it ends.
 
     Once the config is checked, the run takes ``out``'s lock (`locked_output_folder`): a
     second run into the same folder stops there with an `OutputError`. The files an
@@ -94,8 +95,9 @@ def run_and_write(
     a bad ``out`` stops the run at once with an `OutputError` instead of after every
     frame is lost. Each frame's tracked pose is appended to that file as the run goes,
     so a run killed hard keeps its poses so far; the file is deleted once the final
-    trajectory files are written. Ctrl-C during the frames raises `RunInterrupted` once
-    the files are written, naming them (`interrupted_message`). A lock taken over and a
+    trajectory files are written. Ctrl-C or SIGTERM during the frames raises `RunInterrupted`
+    once the files are written, naming them (`interrupted_message`); one that comes while they
+    are written waits until they all are (`pld_slam.errors.deferred_interrupts`). A lock taken over and a
     partial trajectory kept are each a ``warning:`` line on stderr (`warn`).
 
     Returns
