@@ -179,6 +179,11 @@ def interrupt_behind(error: Exception) -> KeyboardInterrupt | None:
     return cause
 
 
+def stop_reason(interrupt: KeyboardInterrupt) -> str:
+    """``stop_reason`` of a run a Ctrl-C (``interrupted``) or a SIGTERM (`Terminated`: ``terminated``) stopped."""
+    return "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+
+
 class System:
     """PLD-SLAM on one stereo sequence: call `run`, or `process_frame` frame by frame and then `close`.
 
@@ -347,12 +352,12 @@ class System:
                     self.process_frame(index)
                 self._finish()
         except KeyboardInterrupt as interrupt:
-            self.result.stop_reason = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+            self.result.stop_reason = stop_reason(interrupt)
             raise
         except Exception as error:
             interrupt = interrupt_behind(error)
             if interrupt is not None:
-                self.result.stop_reason = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+                self.result.stop_reason = stop_reason(interrupt)
                 raise interrupt from None
             self.result.stop_reason = f"{type(error).__name__}: {error}"
             raise
