@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pld_slam.eval.loop_truth import same_place, score_loops, true_poses_at
+from pld_slam.eval.loop_truth import score_loops, true_poses_at
+from pld_slam.geometry.places import same_place
 from pld_slam.geometry.se3 import make_pose, so3_exp
 from pld_slam.trajectory import Trajectory
 

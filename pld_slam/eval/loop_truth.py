@@ -1,7 +1,7 @@
 """Loop closures scored against ground truth: precision of candidates and loops, recall of revisits.
 
-A pair of keyframes shows the same place when their true camera centres are within
-`SAME_PLACE_M` (3 m) and their optical axes within `SAME_PLACE_DEG` (30 deg) (the issue's
+A pair of keyframes shows the same place when their true camera centres are within 3 m
+and their optical axes within 30 deg (`pld_slam.geometry.places.same_place`, the issue's
 definition). What it leaves open, and what we do:
 
 - Precision: the share of closed loops whose two keyframes show the same place; the same
@@ -20,11 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pld_slam.geometry.se3 import viewpoint_change
+from pld_slam.geometry.places import same_place
 from pld_slam.trajectory import Trajectory
 
-SAME_PLACE_M = 3.0
-SAME_PLACE_DEG = 30.0
 _MAX_TIME_DIFF_S = 0.01
 
 
@@ -71,13 +69,6 @@ def true_poses_at(groundtruth: Trajectory, timestamps: np.ndarray) -> np.ndarray
     poses = groundtruth.poses[nearer].copy()
     poses[np.abs(groundtruth.timestamps[nearer] - timestamps) > _MAX_TIME_DIFF_S] = np.nan
     return poses
-
-
-def same_place(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
-    """Whether ``T_w_c`` poses (..., 4, 4) show the same place (module docstring); False where either is NaN."""
-    distance, angle = viewpoint_change(T_a, T_b)
-    with np.errstate(invalid="ignore"):
-        return (distance <= SAME_PLACE_M) & (angle <= SAME_PLACE_DEG)
 
 
 def score_loops(

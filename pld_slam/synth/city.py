@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pld_slam.eval.loop_truth import SAME_PLACE_DEG, same_place
+from pld_slam.geometry.places import SAME_PLACE_DEG, same_place
 from pld_slam.geometry.se3 import transform_points, viewpoint_change
 from pld_slam.synth.scenarios import (
     CAMERA_HEIGHT,
@@ -508,7 +508,7 @@ def city_world(times: np.ndarray, seed: int) -> tuple[np.ndarray, Scene]:
 def revisit_pairs(poses: np.ndarray, min_gap: int, opposite: bool) -> np.ndarray:
     """Pairs (R, 2) ``(earlier, later)`` of camera poses ``poses`` (N, 4, 4) at least
     ``min_gap`` frames apart that see the same place: as the loop truth defines it
-    (`pld_slam.eval.loop_truth.same_place`: within 3 m, optical axes within 30 degrees),
+    (`pld_slam.geometry.places.same_place`: within 3 m, optical axes within 30 degrees),
     or if ``opposite`` from the other direction (within `OPPOSITE_PLACE_M`, axes within 30
     degrees of opposite). One pair per later frame that revisits: its nearest such
     earlier frame."""
