@@ -291,7 +291,7 @@ def test_report_on_a_folder_that_is_no_ablation_says_so(tmp_path):
     (b"{", "not valid JSON"),
     (b"[1, 2]", "expected an object with the keys " + ", ".join(ROW_COLUMNS)),
     (b'{"sequence": "s", "variant": "v"}', "expected an object with the keys "),
-    (b'{"sequence": "caf\xe9"}', "not UTF-8 text"),
+    (b'{"sequence": "caf\xe9"}', "not a text file (byte 17 is not UTF-8)"),
 ])
 def test_report_with_a_corrupt_cell_json_is_an_error_naming_it_before_writing_anything(tmp_path, content, problem):
     (tmp_path / "ablation.json").write_text(json.dumps({"suite": "x", "description": "", "variants": ["v"],

@@ -98,10 +98,23 @@ def test_a_malformed_baseline_is_an_error_naming_the_file_and_the_cell(tmp_path,
 def test_a_baseline_that_is_not_utf8_is_an_error_naming_the_file(tmp_path):
     path = tmp_path / "base.json"
     path.write_bytes('{"description": "caf\u00e9", "cells": []}'.encode("latin-1"))
-    with pytest.raises(ConfigError, match=f"{path}: not UTF-8 text"):
+    with pytest.raises(ConfigError, match=rf"{path}: not a text file \(byte 20 is not UTF-8\)"):
         read_baseline(path)
     result = invoke(path)
-    assert result.exit_code == 2 and result.output.startswith(f"error: {path}: not UTF-8 text")
+    assert result.exit_code == 2 and result.output.startswith(f"error: {path}: not a text file (byte 20 is not UTF-8)")
+
+
+def test_a_baseline_with_a_byte_order_mark_reads(tmp_path):
+    path = tmp_path / "base.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps({"description": "caf\u00e9", "cells": []}).encode("utf-8"))
+    assert read_baseline(path)["description"] == "caf\u00e9"
+
+
+def test_a_baseline_that_cannot_be_read_is_an_error_naming_the_file(tmp_path):
+    path = tmp_path / "base.json"
+    path.mkdir()
+    with pytest.raises(ConfigError, match=f"{path}: cannot read baseline "):
+        read_baseline(path)
 
 
 def test_a_check_where_every_cell_is_skipped_says_nothing_was_checked_and_fails_unless_allowed(

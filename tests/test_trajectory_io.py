@@ -203,6 +203,30 @@ def test_detect_format_refuses_other_column_counts(tmp_path):
         detect_format(path)
 
 
+def test_detect_format_reads_the_file_only_up_to_its_first_data_line(tmp_path):
+    path = tmp_path / "traj.txt"
+    path.write_bytes(b"\xef\xbb\xbf# header\n\n1.0 0 0 0 0 0 0 1\n" + b"\xff" * 10 + b"\n")
+    assert detect_format(path) == "tum"  # the bytes after the first data line are not read
+    with pytest.raises(TrajectoryError, match="cannot read the file"):
+        read_trajectory(path)  # reading the poses reads them
+
+
+def test_detect_format_numbers_lines_as_the_readers_do(tmp_path):
+    path = write_text(tmp_path, "odd.txt", "# a\x0c# b\r\n\r\n1 2 3\n")  # a form feed ends a line too
+    with pytest.raises(TrajectoryError, match=re.escape(f"{path}:4: cannot tell the trajectory format")):
+        detect_format(path)
+    with pytest.raises(TrajectoryError, match=re.escape(f"{path}:4: expected 8 numbers, got 3")):
+        read_trajectory(path, "tum")
+
+
+@pytest.mark.parametrize("text, message", [("", "no poses (empty file)"), ("# only\n\n", "no poses (empty file)")])
+def test_detect_format_of_a_file_without_poses_says_so(tmp_path, text, message):
+    path = write_text(tmp_path, "empty.txt", text)
+    with pytest.raises(TrajectoryError, match=re.escape(f"{path}: {message}")):
+        detect_format(path)
+    with pytest.raises(TrajectoryError, match="no such file"):
+        detect_format(tmp_path / "missing.txt")
+
 # --- evo reads our files ---------------------------------------------------------------
 
 

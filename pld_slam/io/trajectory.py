@@ -26,7 +26,9 @@ Decisions:
   write to within that; a second round trip is exact.
 """
 
-from collections.abc import Callable
+import codecs
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -51,22 +53,63 @@ def _error(path, line: int, problem: str) -> TrajectoryError:
     return TrajectoryError(f"{path}:{line}: {problem}")
 
 
-def _data_lines(path) -> list[tuple[int, str]]:
-    """(line number, stripped text) of each line that is neither blank nor a ``#`` comment."""
+@contextmanager
+def _reading(path) -> Iterator[None]:
+    """Turn the errors of reading the file ``path`` (UTF-8) into a `TrajectoryError` naming it."""
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
+        yield
     except FileNotFoundError:
         raise TrajectoryError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise TrajectoryError(f"{path}: cannot read the file ({exc})") from None
-    lines = [
-        (number, line.strip())
-        for number, line in enumerate(text.splitlines(), start=1)
-        if line.strip() and not line.lstrip().startswith("#")
-    ]
+
+
+def _numbered_data_lines(lines: Iterable[str]) -> Iterator[tuple[int, str]]:
+    """(line number, stripped text) of each of ``lines`` that is neither blank nor a ``#`` comment."""
+    for number, line in enumerate(lines, start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            yield number, line.strip()
+
+
+def _no_poses(path) -> TrajectoryError:
+    return TrajectoryError(f"{path}: no poses (empty file)")
+
+
+def _data_lines(path) -> list[tuple[int, str]]:
+    """(line number, stripped text) of each line that is neither blank nor a ``#`` comment."""
+    with _reading(path):
+        text = Path(path).read_text(encoding="utf-8-sig")
+    lines = list(_numbered_data_lines(text.splitlines()))
     if not lines:
-        raise TrajectoryError(f"{path}: no poses (empty file)")
+        raise _no_poses(path)
     return lines
+
+
+def _first_data_line(path) -> tuple[int, str]:
+    """The first of `_data_lines`, the file read only up to it.
+
+    The bytes are decoded one line at a time and each line split as ``str.splitlines``
+    splits the whole text, so the line numbers are those of `_data_lines`. Bytes that are
+    not UTF-8 before that line are reported as `_data_lines` reports them.
+    """
+    with _reading(path), Path(path).open("rb") as file:
+        try:
+            for number_and_line in _numbered_data_lines(_decoded_lines(file)):
+                return number_and_line
+        except UnicodeDecodeError:
+            pass
+        else:
+            raise _no_poses(path)
+    return _data_lines(path)[0]
+
+
+def _decoded_lines(file) -> Iterator[str]:
+    """The lines of the binary ``file``'s UTF-8 text (a byte-order mark dropped) as ``str.splitlines``
+    gives them, decoded one line at a time."""
+    decoder = codecs.getincrementaldecoder("utf-8-sig")()
+    for raw in file:
+        yield from decoder.decode(raw).splitlines()
+    yield from decoder.decode(b"", final=True).splitlines()
 
 
 def _split_rows(
@@ -271,12 +314,12 @@ _WRITERS: dict[str, Callable[..., None]] = {
 
 
 def detect_format(path) -> str:
-    """The format of a trajectory file from its first data line.
+    """The format of a trajectory file from its first data line (the file is read up to it only).
 
     Comma-separated with 8 or more columns is ``euroc``; 8 whitespace-separated columns
     ``tum``; 12 ``kitti``. Anything else raises `TrajectoryError` naming the file.
     """
-    number, line = _data_lines(path)[0]
+    number, line = _first_data_line(path)
     if "," in line:
         n_columns = len(line.split(","))
         if n_columns >= 8:

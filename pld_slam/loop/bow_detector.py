@@ -28,12 +28,10 @@ selection follows ORB-SLAM2's ``KeyFrameDatabase::DetectLoopCandidates`` and
    its covisible keyframes (`pld_slam.loop.verify.covisible_support`). Group consistency
    alone needs four consecutive keyframes whose top-scored groups overlap; where a revisit
    is short, or the old place wins the scoring only when the camera is already there, it
-   is over before the chain is: on the synthetic ``loop`` (seed 3) the start keyframe is
-   the best candidate only in the last two keyframes (2.5 m and 0 m from it), and the
-   loop was missed; ORB-SLAM3 takes the evidence from the keyframes already in the map.
-   The price is a geometric check of up to ``loop.candidates`` candidates at almost every
-   keyframe: the loop stage's median went from 17.3 to 21.6 ms per keyframe on that
-   sequence (the whole run from 44 to 50 s, the loop's correction included).
+   is over before the chain is, and the loop is missed; ORB-SLAM3 takes the evidence from
+   the keyframes already in the map. The price is a geometric check of up to
+   ``loop.candidates`` candidates at almost every keyframe (see
+   docs/decisions/0022-bow-covisible-check.md).
 """
 
 from dataclasses import dataclass

@@ -20,8 +20,8 @@ step 5); then the loop is corrected:
    in step 1 as well, it was corrected twice). Only neighbours from the current side move
    (ids after the candidate's plus ``loop.exclude_recent_keyframes``): near the end of a
    loop, tracking may already have linked the current keyframe to a few keyframes of the
-   loop's start, and moving those with it moved the first keyframe by the whole
-   correction (synthetic block, seed 0: the start of the trajectory 0.15 m off).
+   loop's start, and moving those with it moved the first keyframe, and the start of the
+   trajectory, by the whole correction (see docs/decisions/0021-loop-correction.md).
 2. Fusion: each inlier of the check makes the current keyframe's feature observe the
    candidate's landmark (fused with the one it observed, if any), and the landmarks of the
    candidate's local map are projected into the moved keyframes and fused (ORB-SLAM2's

@@ -29,11 +29,9 @@ The paper's graph: a node per keyframe, an edge between keyframes "which have at
   residual's norm there (``x_scale``; a whitened Gauss-Newton step is no longer), not at
   `least_squares`' unit radius, which would take a round's few evaluations to grow to a
   metres-long loop correction. It replaced one rigid motion per keyframe and
-  its subtree (the parameterisation of Olson's and TORO's graphs), which on the graph of
-  the synthetic ``city`` at its second loop (404 keyframes, 2,421 edges) stopped after its
-  30 evaluations 3.6 m from the optimum (cost 0.0034 against 0.00013), taking 4.8 s
-  (machine shared); now it converges in 8 evaluations, 0.21 s, and the graph at 914
-  keyframes (5,462 edges) in 12, 0.86 s. Trial steps evaluate the residuals alone
+  its subtree (the parameterisation of Olson's and TORO's graphs), which on a long graph
+  stopped after its evaluations metres from the optimum; whitened, it converges in a few
+  (see docs/decisions/0021-loop-correction.md). Trial steps evaluate the residuals alone
   (`relative_pose_error`), without the Jacobians.
 """
 
@@ -146,8 +144,7 @@ def _solve_round(graph: PoseGraph, max_nfev: int):
 
 _LSMR_MAX_ITERATIONS = 30
 """LSMR iterations per step: in the whitened unknowns a step's linear problem is near the
-identity, and more iterations per step take fewer steps (the city's graphs at 404 and 914
-keyframes: 8 and 12 evaluations with 30, 12 and 16 with 10)."""
+identity, and more iterations per step take fewer steps (see docs/decisions/0021-loop-correction.md)."""
 _DAMPING = 1e-9
 """Added to the Gauss-Newton matrix, times its largest diagonal entry, before it is factored:
 a chain's weakest direction may be nearly unseen, and the factor must exist."""

@@ -13,7 +13,7 @@ those landmarks is held fixed. What it decides:
   the free set observes its landmarks, the free keyframe with the lowest id is held fixed
   instead. (Once a loop joins the end of a run to its start, the first keyframe enters
   the windows of new keyframes; left free, local BA moved it, and with it the start of
-  the trajectory, by 0.15 m on the synthetic block.)
+  the trajectory; see docs/decisions/0021-loop-correction.md.)
 - Residuals, loss and rounds are those of `pld_slam.optim.bundle_adjustment`: point
   stereo reprojection, line vertical and horizontal errors of both endpoints in every
   observing keyframe, weighted by their inverse covariances, Huber loss, then a plain

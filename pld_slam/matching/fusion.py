@@ -66,10 +66,8 @@ def fuse(
     applied keyframe by keyframe, in order; a landmark a fusion removed on the way keeps
     its matches in the later keyframes, which are then skipped (matched one keyframe at
     a time, it would no longer be searched, and a feature it took could go to another
-    landmark). On KITTI 06 fusion took 23 against 29 ms per keyframe matched one keyframe at a
-    time, for the same trajectory (ATE 0.0305 m); on the synthetic sequences (150 frames, seeds
-    0-2) the mean ATE was 0.090 against 0.092 m (low texture), 0.032 against 0.033 m (static),
-    0.057 against 0.057 m (dynamic).
+    landmark). All at once costs less than one keyframe at a time, for the same trajectory
+    (see docs/decisions/0023-matching-search-cost.md).
     """
     landmark_ids = landmark_ids[kind.alive[landmark_ids]]
     if len(landmark_ids) == 0 or len(keyframes) == 0:

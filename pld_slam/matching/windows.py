@@ -24,12 +24,8 @@ def pairs_within(predicted: np.ndarray, usable: np.ndarray, observed: np.ndarray
     observed pixels are put in square cells as wide as the median radius, and each usable
     query tests those of the cells its circle reaches (`_pairs_in_cells`). It replaced a
     numpy search of the observed pixels sorted by column, whose windows ran the whole
-    image high, the largest cost of matching the local map and of local mapping's fusion.
-    On random pixels in KITTI's image size, 800 queries among 2,650 keypoints took 3.4
-    against 0.26 ms at 15 px (frame-to-frame radius) and 0.66 against 0.14 ms at 4 px (map
-    points), the 11 keyframes of one fusion side by side 13 against 3.8 ms; on KITTI 06 the
-    trajectory is the same (the pairs and their order are), fusion took 29 against 36 ms
-    per keyframe and matching the local map 26 against 28 ms per frame.
+    image high, the largest cost of matching the local map and of local mapping's fusion;
+    the pairs and their order are the same (see docs/decisions/0023-matching-search-cost.md).
     """
     queries = np.flatnonzero(usable)
     if len(queries) == 0 or len(observed) == 0:

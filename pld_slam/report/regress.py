@@ -90,10 +90,7 @@ def read_baseline(path: Path, missing_ok: bool = False) -> dict:
     path = Path(path)
     if not path.exists() and missing_ok:
         return {"description": "", "tolerance": dict(DEFAULT_TOLERANCE), "cells": []}
-    try:
-        baseline = read_json(path, ConfigError)
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read baseline ({error.strerror})") from None
+    baseline = read_json(path, ConfigError, "baseline")
     if not isinstance(baseline, dict) or not isinstance(baseline.get("cells"), list):
         raise ConfigError(f"{path}: a baseline needs a 'cells' list")
     _check_tolerance(baseline.get("tolerance", {}), f"{path}: tolerance")

@@ -22,7 +22,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from pld_slam.errors import PldSlamError
+from pld_slam.errors import PldSlamError, read_user_text
 from pld_slam.eval.metrics import ate_result
 from pld_slam.io.evo_results import write_evo_result
 from pld_slam.io.run_output import TRAJECTORY_TUM
@@ -69,13 +69,13 @@ def same_folder_names(names: Iterable[str]) -> tuple[str, str] | None:
     return None
 
 
-def read_json(path: Path, error: type[PldSlamError] = PldSlamError) -> Any:
-    """The JSON value of the file ``path``; ``error`` naming it when it is not UTF-8 text or not valid JSON.
-    An OSError is left to the caller, to whom a missing file means different things."""
+def read_json(path: Path, error: type[PldSlamError] = PldSlamError, what: str = "JSON file") -> Any:
+    """The JSON value of the file ``path`` (read by `pld_slam.errors.read_user_text`: UTF-8, a byte-order
+    mark dropped); ``error`` naming it when it cannot be read (``cannot read WHAT (why)``), is not UTF-8
+    text or is not valid JSON. A caller to whom a missing file means something else checks first."""
+    text = read_user_text(path, error, what)
     try:
-        return json.loads(Path(path).read_bytes().decode("utf-8"))
-    except UnicodeDecodeError as problem:
-        raise error(f"{path}: not UTF-8 text (byte {problem.start})") from None
+        return json.loads(text)
     except json.JSONDecodeError as problem:
         raise error(f"{path}:{problem.lineno}: not valid JSON ({problem.msg})") from None
 
@@ -83,7 +83,7 @@ def read_json(path: Path, error: type[PldSlamError] = PldSlamError) -> Any:
 def read_cell_file(path: Path) -> dict:
     """The row of a cell's ``cell.json``, checked to hold every `ROW_COLUMNS` key; `PldSlamError` naming the
     file otherwise."""
-    row = read_json(path)
+    row = read_json(path, what="cell file")
     if not isinstance(row, dict) or not set(ROW_COLUMNS) <= set(row):
         raise PldSlamError(f"{path}: expected an object with the keys {', '.join(ROW_COLUMNS)}; run the "
                            "ablation again to redo the cell")
@@ -94,7 +94,7 @@ def read_cell(out: Path, spec: CellSpec) -> dict | None:
     """The row recorded for ``spec``'s cell, None when there is none or it is unreadable."""
     try:
         return read_cell_file(cell_dir(out, spec) / CELL_FILE)
-    except (OSError, PldSlamError):
+    except PldSlamError:
         return None
 
 
@@ -173,10 +173,9 @@ def read_ablation(out: Path) -> dict:
     """``ablation.json`` of ``out``, checked to list its ``variants`` and ``sequences``; `PldSlamError` saying
     the folder is no ablation output, or naming the file and its problem."""
     path = Path(out) / ABLATION_FILE
-    try:
-        ablation = read_json(path)
-    except OSError:
-        raise PldSlamError(f"{out}: no {ABLATION_FILE}; not the output folder of pld-slam ablate") from None
+    if not path.exists():
+        raise PldSlamError(f"{out}: no {ABLATION_FILE}; not the output folder of pld-slam ablate")
+    ablation = read_json(path, what="ablation file")
     if not isinstance(ablation, dict) or not all(is_list_of_names(ablation.get(key)) for key in LISTED):
         raise PldSlamError(f"{path}: expected an object listing the {' and the '.join(LISTED)} (lists of names)")
     return ablation

@@ -15,25 +15,17 @@ ratio test ``mapping.ratio``. These are ORB-SLAM2's for tracking its local map (
 ratio 0.8), where frame-to-frame matching allows 64 bits and 0.9
 (``tracking.max_point_distance``, ``tracking.ratio``): a map point's descriptor was taken
 at a keyframe, from farther away than the last frame, so the right match lies farther in
-Hamming distance, and the stricter ratio pays for the looser bound. Measured against the
-frame-to-frame pair: median map point inliers on KITTI 06 305 against 280 (raw 0005 257
-against 234); ATE on raw 0005 0.086 against 0.094 m, on KITTI 06 0.031 against 0.028 m,
-on the synthetic street (mean of seeds 0-2, 150 frames) 0.033 against 0.037 m (seeds
-0-1, 300 frames: 0.072 against 0.076 m; its 100-frame CI cell 0.039 against 0.027 m), with
-traffic 0.057 against 0.053 m, low texture 0.092 against 0.093 m. With 100 bits and the
-0.9 ratio, ATE was lower still on the real extracts (0.023 and 0.086 m) but a convoy's
-points re-matched the landmarks made on it and kept them alive (10 landmarks older than
-two keyframes on the test's 30-frame convoy, against 3; `tests/test_dynamic_scenes.py`).
+Hamming distance, and the stricter ratio pays for the looser bound: the frame-to-frame
+pair tracked fewer map points, and 100 bits with the 0.9 ratio kept a convoy's landmarks
+alive (`tests/test_dynamic_scenes.py`; see docs/decisions/0019-local-map-tracking.md).
 Fusion searches within the frame-to-frame bound and ratio (`pld_slam.matching.fusion`).
 
 Frame-to-frame points. The pose is solved over the map matches and, as ORB-SLAM2's stereo
 tracking does with its temporary "visual odometry" points, over the reference frame's
 matches whose current feature found no map point (`ReferenceMatches`, expressed in the
 world frame through the reference pose). Near points change appearance fastest and are
-found again in the map least (on the synthetic street, a point nearer than 10 m was
-matched in 21 % of the frames that should see it, against 40 % beyond 30 m); without
-these matches a frame's translation rested on far map points only and drifted by
-decimetres between keyframes.
+found again in the map least; without these matches a frame's translation rested on
+far map points only and drifted between keyframes (see docs/decisions/0019-local-map-tracking.md).
 
 Landmarks passed on. A reference feature that observes a landmark (the reference is a
 keyframe, or a frame that tracked the map) passes it on through its frame-to-frame match,
@@ -42,11 +34,10 @@ landmark, whatever the search of the local map found for it. The frame-to-frame 
 made at a close viewpoint, against the reference's own descriptor, so it keeps finding a
 landmark after its map descriptor, seen from the keyframes, has stopped matching. Without
 it, landmarks were found again too rarely for keyframes a few frames apart to share
-them: on the synthetic street, 77 landmarks tied three keyframes 5 and 10 frames apart,
-and local BA moved the keyframes by 7-10 cm from tracked poses good to 2 cm (a problem
-that weak fits noise). Each landmark and each feature enters the solve once, the landmark
-passed on first; the solve's chi-square test then drops a landmark whose
-association went wrong.
+them, and local BA moved the keyframes away from good tracked poses (see
+docs/decisions/0019-local-map-tracking.md). Each landmark and each feature enters the
+solve once, the landmark passed on first; the solve's chi-square test then drops a
+landmark whose association went wrong.
 
 Dynamic features. A feature labelled dynamic (by the detectors, on the reference-frame
 matches) is matched like any other but never enters the pose: the landmark it matched is
@@ -81,8 +72,8 @@ from pld_slam.tracking.static_world import static_world_solution
 MOVER_DEPTH_TOLERANCE = 0.2
 """A mover's point within this share of a landmark's depth stands at its depth
 (`missed_near_movers`): a car 4.5 m long seen from 20 m spans about 10 % in depth and
-its stereo depth errs by about 5 % there, while what it hides lies farther behind.
-0.35 left the same landmarks on the synthetic ``parked_then_moving`` cars."""
+its stereo depth errs by about 5 % there, while what it hides lies farther behind
+(0.35 measured: docs/decisions/0019-local-map-tracking.md)."""
 
 
 @dataclass(frozen=True)
@@ -362,32 +353,24 @@ def missed_near_movers(
     (`pld_slam.mapping.local_mapping`, step 2).
 
     The radius is one cell of the dynamic grid (``filters.point_grid_cell_width``, 64 px),
-    the reach of the grid's own evidence (a hot cell marks points in its neighbours). On
-    the synthetic ``parked_then_moving`` cars (seeds 0-2, landmarks alive 5 keyframes after
-    each started), counting only the landmarks matched to nothing as missed, half the
-    radius left 33 where the cell left 28, for the same ATE on the other synthetic
-    scenarios; counting rejected matches as missed too, as here, leaves 22.
+    the reach of the grid's own evidence (a hot cell marks points in its neighbours); half
+    of it left more of a parked car's landmarks alive.
 
     In the image, not only searched. A landmark the search of the local map skipped, beyond
     its scale-invariance range or viewing angle
     (`pld_slam.matching.projection.match_map_points`), is judged too: those bounds say where
     its descriptor can match, not where it can be seen, and a car's corners mapped from 15 m
-    fall out of the range as the camera closes in on the spot the car has left. Judging only
-    the searched landmarks left 18 of those made at rest (and 4 made while moving); judging
-    all in the image leaves 7 (and none), and the other scenarios' ATE and the real
-    extracts' came out the same to the millimetre (`benchmarks/dynamic.py`, seeds 0-2). Most
-    of the 7 stand where the car has driven on and now shows behind them. Counting a mover
-    behind a landmark too left 4, but a mover anywhere in the cell is not one seen through
-    the landmark's place (within 16 px of its projection, it left 7 again), and raw 0005
-    came out at 0.088 m against 0.086; not kept. The frame's stereo pair, which shows the
-    farther surface wherever there is texture, does better
-    (`pld_slam.tracking.see_through`).
+    fall out of the range as the camera closes in on the spot the car has left. A mover
+    behind a landmark is not counted: a mover anywhere in the cell is not one seen through
+    the landmark's place. The frame's stereo pair, which shows the farther surface wherever
+    there is texture, does better (`pld_slam.tracking.see_through`).
 
     Hidden is not missed. Behind a truck that fills half the view for seconds, the static
     landmarks are merely hidden. Counting them as missed removed them, the local map thinned,
-    and on the synthetic ``convoy`` seed 2 with the true masks a frame's guided pose then lost
-    to one from scratch 3.7 m off (the facades' repeated windows), ATE 0.048 -> 1.85 m; not
-    counting the hidden ones, 0.049 m.
+    and a frame's guided pose then lost to a wrong one from scratch.
+
+    The measurements behind the radius, the landmarks judged and the hidden ones: see
+    docs/decisions/0019-local-map-tracking.md.
     """
     movers = np.flatnonzero(dynamic)
     query = np.zeros(0, dtype=np.int64)

@@ -27,20 +27,16 @@ map does not confirm, or that tracks fewer than ``keyframes.min_tracked_ratio`` 
 reference keyframe's landmarks is also posed without the prior (`relocalisation`: descriptor
 matches to the local map, seeded PnP RANSAC, then the local map tracked from there; then
 the keyframes most similar by GGS), and the pose the local map confirms with more
-landmarks wins (`TrackingStatus.RECOVERED` when it is the one without the prior). On the
-synthetic street started from rest with two frames in three dropped, the widened guided
-search locked onto the facades' repeated texture one period off and ran 1.6 m per frame
-fast with 70-110 inliers per frame, a silently wrong trajectory (ATE 1.1 m). A frame whose
-local-map pose is the one a trusted motion model predicted (the last frame tracked
-normally, the guided search not widened, the pose within the model's expected error:
-`static_world.motion_model_distance`) is not posed again when it merely tracks few
-landmarks: on the synthetic ``convoy`` a bus and a truck hid most of the static world,
-and the pose from scratch matched landmarks the convoy had left in the map (115 against
-106) and put the camera back 1.7 m, where it then drove along with the convoy. Nor does a
-pose from scratch that lies farther from a trusted prediction than the guided one replace
-it, however many landmarks it tracks: on ``convoy`` seed 1 (true masks) a guided pose 7 cm
-from the prediction lost to one 2.9 m away with 125 landmarks against 97, the facades'
-repeated windows matched one period off.
+landmarks wins (`TrackingStatus.RECOVERED` when it is the one without the prior): a
+widened guided search can lock onto a facade's repeated texture one period off, a silently
+wrong trajectory. A frame whose local-map pose is the one a trusted motion model predicted
+(the last frame tracked normally, the guided search not widened, the pose within the
+model's expected error: `static_world.motion_model_distance`) is not posed again when it
+merely tracks few landmarks: where movers hide most of the static world, a pose from
+scratch matches the landmarks they left in the map. Nor does a pose from scratch that lies
+farther from a trusted prediction than the guided one replace it, however many landmarks
+it tracks (repeated windows matched one period off). See
+docs/decisions/0020-tracking-failure.md.
 Otherwise (or without a map), fewer than ``tracking.min_inliers`` inlier points + lines,
 or a failed solve, keeps the motion model's prediction for that frame (flagged
 `TrackingStatus.LOST`): the trajectory stays continuous, and the next frame is tracked
@@ -462,9 +458,8 @@ def _established_landmarks(world_map: Map, keyframe: KeyFrame) -> int:
     none, so its ratio rules cannot ask for the second keyframe. Counting all of them, the
     frame after the first keyframe usually tracks under ``min_tracked_ratio`` of them and
     becomes the second, whose GGS then sets the keyframe spacing of the run (the ``FEW_TRACKED``
-    rule of `pld_slam.keyframes`): on KITTI 06 a keyframe every 1.6 frames and ATE 0.031 m;
-    counted as ORB-SLAM2 does, 15 keyframes in 51 frames and 0.039 m (raw 0005: 0.107 against
-    0.086 m), for about half the mapping time."""
+    rule of `pld_slam.keyframes`); counted as ORB-SLAM2 does, keyframes came sparser and ATE
+    was higher, for about half the mapping time (see docs/decisions/0016-keyframe-selection.md)."""
     min_observers = min(2, len(world_map.keyframes))
     count = 0
     for kind in world_map.kinds:
