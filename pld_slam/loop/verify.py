@@ -67,8 +67,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pld_slam.config import Config, LoopConfig
+from pld_slam.geometry import places
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.geometry.se3 import inverse, motion_size, se3_log, viewpoint_change
+from pld_slam.geometry.se3 import inverse, motion_size, se3_log
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.matching.prior_free import pose_without_prior
@@ -201,8 +202,7 @@ def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> 
 
 def same_place(T_i_w: np.ndarray, T_j_w: np.ndarray, config: LoopConfig) -> bool:
     """Whether two ``T_c_w`` poses (4, 4) see from the same place (module docstring, test 3)."""
-    distance, angle = viewpoint_change(inverse(T_i_w), inverse(T_j_w))
-    return bool(distance <= config.max_distance_m and angle <= config.max_view_angle_deg)
+    return bool(places.same_place(inverse(T_i_w), inverse(T_j_w), config.max_distance_m, config.max_view_angle_deg))
 
 
 def relative_motion(T_i_w: np.ndarray, T_j_w: np.ndarray) -> float:
