@@ -6,6 +6,7 @@ import numpy as np
 from pld_slam.config import load_config
 from pld_slam.geometry.se3 import inverse
 from pld_slam.tracking.motion_model import MotionModel
+from pld_slam.tracking.static_world import StaticWorldOptions
 
 
 def pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:
@@ -61,8 +62,8 @@ def test_distance_is_in_units_of_the_expected_error_the_larger_of_translation_an
     model = MotionModel()
     model.advance(pose(0.0, (0.0, 0.0, 1.0)))
     predicted = model.predicted_T_w_c()
-    assert model.distance(inverse(predicted), config) == 0.0
+    assert model.distance(inverse(predicted), StaticWorldOptions.of(config)) == 0.0
     shifted = predicted @ pose(0.0, (3 * metres, 0.0, 0.0))
-    np.testing.assert_allclose(model.distance(inverse(shifted), config), 3.0, rtol=1e-9)
+    np.testing.assert_allclose(model.distance(inverse(shifted), StaticWorldOptions.of(config)), 3.0, rtol=1e-9)
     turned = predicted @ pose(5 * degrees, (metres, 0.0, 0.0))
-    np.testing.assert_allclose(model.distance(inverse(turned), config), 5.0, rtol=1e-6)
+    np.testing.assert_allclose(model.distance(inverse(turned), StaticWorldOptions.of(config)), 5.0, rtol=1e-6)

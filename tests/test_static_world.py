@@ -16,6 +16,7 @@ from pld_slam.geometry.se3 import inverse, make_pose, so3_exp, transform_points
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations, WhitenedRows
 from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose_rejecting_outliers
 from pld_slam.tracking.static_world import (
+    StaticWorldOptions,
     background_motion,
     coherent_motions,
     motion_model_distance,
@@ -27,6 +28,7 @@ from pld_slam.tracking.static_world import (
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = load_config([CONFIGS / "default.yaml"])
+WORLD = StaticWorldOptions.of(CONFIG)
 T_CAMERA_DROVE = make_pose(so3_exp(np.array([0.0, 0.01, 0.0])), np.array([0.02, 0.0, -0.8]))
 """``T_c_r``: the current camera 0.8 m ahead of the reference, turned 0.6 deg."""
 
@@ -70,7 +72,7 @@ def robust_solve(points: PointObservations, T_predicted: np.ndarray):
 
 
 def motions_of(points: PointObservations, config: Config = CONFIG):
-    return coherent_motions(CAMERA, points, len(points.sigma_px), OPTIONS, config)
+    return coherent_motions(CAMERA, points, len(points.sigma_px), OPTIONS, StaticWorldOptions.of(config))
 
 
 def test_rigid_motions_recover_known_motions_from_three_points():
@@ -119,22 +121,22 @@ def test_without_a_trusted_motion_model_the_farther_motion_is_the_static_world(s
 def test_a_trusted_prediction_is_refined_on_the_matches_that_agree_with_it():
     points, static = convoy_frame(0)
     near_truth = T_CAMERA_DROVE @ make_pose(np.eye(3), np.array([0.0, 0.0, 0.03]))  # 3 cm off
-    motion = predicted_motion(CAMERA, near_truth, points, len(static), OPTIONS, CONFIG)
+    motion = predicted_motion(CAMERA, near_truth, points, len(static), OPTIONS, WORLD)
     assert translation_error(motion.T_c_r, T_CAMERA_DROVE) < 0.01
     assert motion.inliers[static].mean() > 0.9 and not motion.inliers[~static].any()
     # a prediction the convoy matches is the convoy's: the motion model is the reference
     still = make_pose(np.eye(3), np.array([0.0, 0.0, -0.02]))
-    assert translation_error(predicted_motion(CAMERA, still, points, len(static), OPTIONS, CONFIG).T_c_r,
+    assert translation_error(predicted_motion(CAMERA, still, points, len(static), OPTIONS, WORLD).T_c_r,
                              np.eye(4)) < 0.01
 
 
 def test_a_prediction_few_matches_agree_with_is_no_motion():
     points, static = convoy_frame(1)
     wrong = make_pose(np.eye(3), np.array([0.0, 0.0, -2.5]))  # a dropped frame: the model is 1.7 m off
-    assert predicted_motion(CAMERA, wrong, points, len(static), OPTIONS, CONFIG) is None
+    assert predicted_motion(CAMERA, wrong, points, len(static), OPTIONS, WORLD) is None
     solution = robust_solve(points, wrong)
     resolved = static_world_solution(CAMERA, solution, wrong, points, LineObservations.empty(),
-                                     prior_trusted=True, options=OPTIONS, config=CONFIG)
+                                     prior_trusted=True, options=OPTIONS, world=WORLD)
     assert translation_error(resolved.solution.T_c_w, T_CAMERA_DROVE) < 0.03  # RANSAC and depth decide
 
 
@@ -143,7 +145,7 @@ def test_the_frame_is_solved_again_for_the_static_world_without_the_convoy(seed)
     points, static = convoy_frame(seed)
     solution = robust_solve(points, np.eye(4))
     resolved = static_world_solution(CAMERA, solution, np.eye(4), points, LineObservations.empty(),
-                                     prior_trusted=False, options=OPTIONS, config=CONFIG)
+                                     prior_trusted=False, options=OPTIONS, world=WORLD)
     assert translation_error(resolved.solution.T_c_w, T_CAMERA_DROVE) < 0.03
     assert not resolved.solution.inliers.points[~static].any() and resolved.solution.inliers.points[static].mean() > 0.9
     assert resolved.moving[~static].mean() > 0.9 and not resolved.moving[static].any()  # the convoy is marked
@@ -161,7 +163,7 @@ def test_a_static_frame_with_many_mismatches_is_left_as_solved():
     assert translation_error(solution.T_c_w, T_CAMERA_DROVE) < 0.05
     assert len(motions_of(points)) == 1
     untrusted = static_world_solution(CAMERA, solution, np.eye(4), points, LineObservations.empty(),
-                                      prior_trusted=False, options=OPTIONS, config=CONFIG)
+                                      prior_trusted=False, options=OPTIONS, world=WORLD)
     assert untrusted.solution is solution and not untrusted.moving.any()
 
 
@@ -178,8 +180,8 @@ def test_motion_model_distance_is_in_units_of_the_expected_error():
     base = make_pose(so3_exp(np.array([0.0, 0.3, 0.0])), np.array([1.0, 0.0, 2.0]))
     shifted = make_pose(np.eye(3), np.array([0.0, 0.3, 0.0])) @ base
     turned = make_pose(so3_exp(np.array([np.radians(4.0), 0.0, 0.0])), np.zeros(3)) @ base
-    assert motion_model_distance(shifted, base, config) == pytest.approx(1.5)
-    assert motion_model_distance(turned, base, config) == pytest.approx(2.0)
+    assert motion_model_distance(shifted, base, StaticWorldOptions.of(config)) == pytest.approx(1.5)
+    assert motion_model_distance(turned, base, StaticWorldOptions.of(config)) == pytest.approx(2.0)
 
 
 def test_a_solve_within_a_subset_keeps_to_it():
@@ -202,7 +204,7 @@ def test_a_crowd_crossing_in_front_of_a_stopped_camera_does_not_move_it():
     solution = robust_solve(points, np.eye(4))
     assert translation_error(solution.T_c_w, np.eye(4)) > 0.05  # the crowd pulls the robust solve
     resolved = static_world_solution(CAMERA, solution, np.eye(4), points, LineObservations.empty(),
-                                     prior_trusted=True, options=OPTIONS, config=CONFIG)
+                                     prior_trusted=True, options=OPTIONS, world=WORLD)
     assert translation_error(resolved.solution.T_c_w, np.eye(4)) < 0.01
     assert not resolved.solution.inliers.points[90:].any() and resolved.moving[90:].mean() > 0.9
 
@@ -225,7 +227,7 @@ def test_the_convoys_lines_stay_out_of_the_static_worlds_solve():
                                for f in ("start_w", "end_w", "start_px", "end_px", "sigma_px", "horizontal_eligible")))
     solution = optimize_pose_rejecting_outliers(CAMERA, np.eye(4), points=points, lines=lines, options=OPTIONS)
     resolved = static_world_solution(CAMERA, solution, np.eye(4), points, lines, prior_trusted=False,
-                                     options=OPTIONS, config=CONFIG)
+                                     options=OPTIONS, world=WORLD)
     assert translation_error(resolved.solution.T_c_w, T_CAMERA_DROVE) < 0.03
     assert resolved.solution.inliers.lines[:20].all()
     # a convoy line may fit both motions when its displacement runs along itself (the aperture problem)

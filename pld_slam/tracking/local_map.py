@@ -67,7 +67,7 @@ from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.matching.projection import LandmarkSnapshot, ProjectionSearch, match_map_lines, match_map_points
 from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
-from pld_slam.tracking.static_world import static_world_solution
+from pld_slam.tracking.static_world import StaticWorldOptions, static_world_solution
 
 MOVER_DEPTH_TOLERANCE = 0.2
 """A mover's point within this share of a landmark's depth stands at its depth
@@ -274,7 +274,8 @@ def track_local_map(
     solution = optimize_pose_rejecting_outliers(camera, T_c_w_init, points=points, lines=lines, options=pose_options)
     moving_ids = np.zeros(0, dtype=np.int64)
     if check_static_world and solution.success:
-        static = static_world_solution(camera, solution, T_c_w_init, points, lines, True, pose_options, config)
+        static = static_world_solution(camera, solution, T_c_w_init, points, lines, True, pose_options,
+                                       StaticWorldOptions.of(config))
         solution, moving_ids = static.solution, map_points.landmarks[static.moving[: len(map_points)]]
     map_inliers = solution.inliers.points[: len(map_points)]
     line_ids = _inlier_ids(len(features.lines), map_lines, solution.inliers.lines[: len(map_lines)])

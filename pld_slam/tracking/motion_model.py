@@ -15,9 +15,8 @@ distances from it are in units of its expected error (`static_world.motion_model
 
 import numpy as np
 
-from pld_slam.config import Config
 from pld_slam.geometry.se3 import inverse, nearest_pose
-from pld_slam.tracking.static_world import motion_model_distance
+from pld_slam.tracking.static_world import StaticWorldOptions, motion_model_distance
 
 
 class MotionModel:
@@ -64,7 +63,7 @@ class MotionModel:
         self.T_w_p = nearest_pose(self.predicted_T_w_c())
         return self.T_w_p
 
-    def distance(self, T_c_w: np.ndarray, config: Config) -> float:
+    def distance(self, T_c_w: np.ndarray, world: StaticWorldOptions) -> float:
         """How far a pose ``T_c_w`` (4, 4, world to camera) lies from the prediction, in units of the
-        model's expected error (``dynamic.motion_prior_m``, ``dynamic.motion_prior_deg``)."""
-        return motion_model_distance(T_c_w, self.predicted_T_c_w(), config)
+        model's expected error (``world.motion_prior_m``, ``world.motion_prior_deg``)."""
+        return motion_model_distance(T_c_w, self.predicted_T_c_w(), world)

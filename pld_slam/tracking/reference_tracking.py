@@ -36,7 +36,7 @@ from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.reference import FeatureMatches, ReferenceFrame
-from pld_slam.tracking.static_world import static_world_solution
+from pld_slam.tracking.static_world import StaticWorldOptions, static_world_solution
 
 
 @dataclass(frozen=True)
@@ -122,6 +122,7 @@ class ReferenceTracker:
 
     def __init__(self, camera: StereoCamera, config: Config, pose_options: PoseOnlyOptions) -> None:
         self._camera, self._config, self._pose_options = camera, config, pose_options
+        self._static_world = StaticWorldOptions.of(config)
 
     def track(
         self,
@@ -274,7 +275,7 @@ class ReferenceTracker:
         moving = np.zeros(len(points.sigma_px), dtype=bool)
         if solution.success and detectors_on(self._config):
             static = static_world_solution(self._camera, solution, T_c_r_predicted, points, lines,
-                                           trusted, self._pose_options, self._config)
+                                           trusted, self._pose_options, self._static_world)
             solution, moving = static.solution, static.moving
         labels = self._label_dynamic(reference, features, kept, solution)
         return solution, dataclasses.replace(labels, point_dynamic=labels.point_dynamic | moving)

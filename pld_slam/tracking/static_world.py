@@ -81,6 +81,31 @@ from pld_slam.optim.pose_only import (
     optimize_pose_rejecting_outliers,
 )
 
+
+@dataclass(frozen=True)
+class StaticWorldOptions:
+    """What the static-world check reads of the configuration.
+
+    min_inliers : inliers any candidate motion needs (``tracking.min_inliers``).
+    rival_min_share : share of the matches a robust solve must reject to be suspect, and a
+        coherent motion must hold to be a candidate (``dynamic.rival_min_share``).
+    motion_prior_m, motion_prior_deg : the motion model's expected error, the units of
+        `motion_model_distance` (``dynamic.motion_prior_m``, ``dynamic.motion_prior_deg``).
+    seed : seed of the RANSAC hypotheses (``system.seed``).
+    """
+
+    min_inliers: int
+    rival_min_share: float
+    motion_prior_m: float
+    motion_prior_deg: float
+    seed: int
+
+    @classmethod
+    def of(cls, config: Config) -> "StaticWorldOptions":
+        return cls(config.tracking.min_inliers, config.dynamic.rival_min_share, config.dynamic.motion_prior_m,
+                   config.dynamic.motion_prior_deg, config.system.seed)
+
+
 HYPOTHESES = 200
 """RANSAC hypotheses per motion: at least one of 200 triples lies wholly in a group of a
 quarter of the matches with probability 1 - (1 - 0.25**3)**200 = 0.96, of a third 0.9995."""
@@ -159,43 +184,43 @@ def dominant_motion(camera: StereoCamera, points: PointObservations, among: np.n
     return refined_motion(camera, hypotheses[best], points, among, options)
 
 
-def least_support(n_matches: int, config: Config) -> float:
-    """Inliers a motion needs to be a candidate for the static world's: ``tracking.min_inliers``
-    and ``dynamic.rival_min_share`` of the ``n_matches`` (points and lines)."""
-    return max(config.tracking.min_inliers, config.dynamic.rival_min_share * n_matches)
+def least_support(n_matches: int, options: StaticWorldOptions) -> float:
+    """Inliers a motion needs to be a candidate for the static world's: ``min_inliers`` and
+    ``rival_min_share`` of the ``n_matches`` (points and lines)."""
+    return max(options.min_inliers, options.rival_min_share * n_matches)
 
 
 def coherent_motions(camera: StereoCamera, points: PointObservations, n_matches: int, options: PoseOnlyOptions,
-                     config: Config) -> list[Motion]:
+                     world: StaticWorldOptions) -> list[Motion]:
     """The (up to) two largest coherent motions of the point matches with `least_support`,
     the larger first (module docstring, step 3)."""
-    rng = np.random.default_rng(config.system.seed)
+    rng = np.random.default_rng(world.seed)
     motions: list[Motion] = []
     remaining = np.ones(len(points.sigma_px), dtype=bool)
     while len(motions) < 2:
         motion = dominant_motion(camera, points, remaining, rng, options)
-        if motion is None or motion.support < least_support(n_matches, config):
+        if motion is None or motion.support < least_support(n_matches, world):
             break
         motions.append(motion)
         remaining &= ~motion.inliers
     return motions
 
 
-def motion_model_distance(T_c_r: np.ndarray, T_c_r_predicted: np.ndarray, config: Config) -> float:
+def motion_model_distance(T_c_r: np.ndarray, T_c_r_predicted: np.ndarray, world: StaticWorldOptions) -> float:
     """How far a motion lies from the prediction, in units of the model's expected error
     (module docstring): the larger of translation / ``motion_prior_m`` and rotation /
     ``motion_prior_deg`` of ``T_c_r @ inverse(T_c_r_predicted)``."""
     translation, rotation = motion_size(T_c_r @ inverse(T_c_r_predicted))
-    return max(translation / config.dynamic.motion_prior_m, rotation / config.dynamic.motion_prior_deg)
+    return max(translation / world.motion_prior_m, rotation / world.motion_prior_deg)
 
 
 def predicted_motion(camera: StereoCamera, T_c_r_predicted: np.ndarray, points: PointObservations, n_matches: int,
-                     options: PoseOnlyOptions, config: Config) -> Motion | None:
+                     options: PoseOnlyOptions, world: StaticWorldOptions) -> Motion | None:
     """The motion model's prediction refined on the matches that agree with it, where it keeps
     `least_support`; else None (step 2)."""
     everything = np.ones(len(points.sigma_px), dtype=bool)
     motion = refined_motion(camera, T_c_r_predicted, points, everything, options)
-    return motion if motion.support >= least_support(n_matches, config) else None
+    return motion if motion.support >= least_support(n_matches, world) else None
 
 
 def median_inlier_depth(motion: Motion, points: PointObservations) -> float:
@@ -241,7 +266,7 @@ def static_world_solution(
     lines: LineObservations,
     prior_trusted: bool,
     options: PoseOnlyOptions,
-    config: Config,
+    world: StaticWorldOptions,
 ) -> StaticWorld:
     """The robust ``solution`` of a frame (fitted to ``points`` and ``lines``, started from the
     motion model's ``T_c_r_predicted``), or the frame solved again for the static world's
@@ -249,17 +274,17 @@ def static_world_solution(
     unchanged = StaticWorld(solution, np.zeros(len(points.sigma_px), dtype=bool))
     n_matches = len(points.sigma_px) + len(lines.sigma_px)
     if prior_trusted:
-        suspect = motion_model_distance(solution.T_c_w, T_c_r_predicted, config) > 1.0
+        suspect = motion_model_distance(solution.T_c_w, T_c_r_predicted, world) > 1.0
     else:
-        suspect = outlier_count(solution) >= config.dynamic.rival_min_share * n_matches
+        suspect = outlier_count(solution) >= world.rival_min_share * n_matches
     if not suspect:
         return unchanged
     motions = []
-    static = predicted_motion(camera, T_c_r_predicted, points, n_matches, options, config) if prior_trusted else None
+    static = predicted_motion(camera, T_c_r_predicted, points, n_matches, options, world) if prior_trusted else None
     if static is None:
-        motions = coherent_motions(camera, points, n_matches, options, config)
+        motions = coherent_motions(camera, points, n_matches, options, world)
         static = background_motion(motions, points)
-    if static is None or motion_model_distance(static.T_c_r, solution.T_c_w, config) <= 1.0:
+    if static is None or motion_model_distance(static.T_c_r, solution.T_c_w, world) <= 1.0:
         return unchanged
     static_lines = line_inliers_at(camera, static.T_c_r, lines, options)
     within = ObservationMasks(static.inliers, static_lines, static_lines)

@@ -69,6 +69,7 @@ from pld_slam.tracking.reference import DynamicIndices, LandmarkIds, ReferenceFr
 from pld_slam.tracking.reference_tracking import ReferenceTracker, ReferenceTracking, TrackingCounts, detectors_on
 from pld_slam.tracking.relocalisation import Relocalised, candidate_local_maps, track_from_scratch
 from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
+from pld_slam.tracking.static_world import StaticWorldOptions
 
 
 class TrackingStatus(enum.Enum):
@@ -330,7 +331,7 @@ class Tracker:
         last frame not tracked normally, or this frame's guided search widened) or the map gave no pose."""
         if widened or not self._state.motion_trusted or not map_tracking.posed(self._config.tracking.min_inliers):
             return None
-        return self._motion.distance(map_tracking.solution.T_c_w, self._config)
+        return self._motion.distance(map_tracking.solution.T_c_w, StaticWorldOptions.of(self._config))
 
     def _with_stereo_evidence(self, map_tracking: LocalMapTracking, features: StereoFeatures, left: np.ndarray,
                               right: np.ndarray) -> LocalMapTracking:
