@@ -48,7 +48,7 @@ from pld_slam.datasets import StereoSequence, open_sequence
 from pld_slam.eval.map_at_truth import move_map_to_truth
 from pld_slam.eval.metrics import evaluate
 from pld_slam.geometry.se3 import inverse
-from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
+from pld_slam.mapping.map_ba import BaReport, MapBaOptions, adjust_keyframes
 from pld_slam.run_config import load_run_config
 from pld_slam.synth.scenarios import DEFAULT_FRAMES
 from pld_slam.synth.writer import ensure_sequence
@@ -68,8 +68,8 @@ def adjusted_copy(result: RunResult, sequence: StereoSequence, config: Config, f
     world_map = copy.deepcopy(result.map)
     if from_truth:
         move_map_to_truth(world_map, sequence.groundtruth.poses)
-    report = adjust_keyframes(world_map, sorted(world_map.keyframes), sequence.camera, config, MAX_NFEV,
-                              to_convergence=True)
+    report = adjust_keyframes(world_map, sorted(world_map.keyframes), sequence.camera, MapBaOptions.of(config),
+                              MAX_NFEV, to_convergence=True)
     return dataclasses.replace(result, map=world_map), report
 
 

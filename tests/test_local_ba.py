@@ -39,7 +39,7 @@ from pld_slam.geometry.se3 import inverse, make_pose, se3_exp, so3_exp, so3_log,
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.local_ba import local_bundle_adjustment
 from pld_slam.mapping.map import Map
-from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
+from pld_slam.mapping.map_ba import BaReport, MapBaOptions, adjust_keyframes
 
 CONFIG = dataclasses.replace(Config(), mapping=dataclasses.replace(Config().mapping, local_ba_window=2))
 CORNER_NOISE_PX = 1.0 / 3.0
@@ -349,7 +349,7 @@ def test_the_first_keyframe_stays_fixed_even_with_other_keyframes_held():
     spec = {"A": ((0, 1, 2, 3), 60), "B": ((1, 2, 3), 30)}
     made = build_map(seed=3, point_spec=spec, line_spec={"A": ((0, 1, 2, 3), 4)}, n_keyframes=4, exact_keyframes=())
     before = {k: keyframe.T_c_w.copy() for k, keyframe in made.world_map.keyframes.items()}
-    report = adjust_keyframes(made.world_map, [0, 1, 3], CAMERA, CONFIG, max_nfev=10)
+    report = adjust_keyframes(made.world_map, [0, 1, 3], CAMERA, MapBaOptions.of(CONFIG), max_nfev=10)
     assert report.fixed_keyframes == 2 and report.free_keyframes == 2  # keyframe 2 (outside) and keyframe 0
     assert np.array_equal(made.world_map.keyframes[0].T_c_w, before[0])
     assert not np.array_equal(made.world_map.keyframes[1].T_c_w, before[1])
@@ -361,8 +361,8 @@ def test_solving_to_convergence_goes_on_where_refining_stops():
     for to_convergence in (False, True):
         made = build_map(seed=0, point_spec=POINT_GROUPS, line_spec=LINE_GROUPS, n_keyframes=5,
                          exact_keyframes=(0, 1), n_point_outliers=4)
-        reports[to_convergence] = adjust_keyframes(made.world_map, [1, 2, 3, 4], CAMERA, CONFIG, max_nfev=200,
-                                                   to_convergence=to_convergence)
+        reports[to_convergence] = adjust_keyframes(made.world_map, [1, 2, 3, 4], CAMERA, MapBaOptions.of(CONFIG),
+                                                   max_nfev=200, to_convergence=to_convergence)
     # measured: 13 evaluations to cost 50.92854 refining, 15 to 50.92841 solving to convergence
     assert reports[True].nfev > reports[False].nfev
     assert reports[True].final_cost <= reports[False].final_cost

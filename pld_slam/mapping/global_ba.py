@@ -28,11 +28,12 @@ nearer on the synthetic static street (0.0827, 0.0428, 0.0303) and 7 % on the lo
 from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.map import Map
-from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
+from pld_slam.mapping.map_ba import BaReport, MapBaOptions, adjust_keyframes
 
 
 def global_bundle_adjustment(world_map: Map, camera: StereoCamera, config: Config) -> BaReport | None:
     """Bundle-adjust the whole map, its first keyframe held fixed; None with nothing to adjust."""
     if len(world_map.keyframes) < 2:
         return None
-    return adjust_keyframes(world_map, sorted(world_map.keyframes), camera, config, config.optimize.global_ba_max_nfev)
+    return adjust_keyframes(world_map, sorted(world_map.keyframes), camera, MapBaOptions.of(config),
+                            config.optimize.global_ba_max_nfev)

@@ -10,7 +10,7 @@ from pld_slam.config import Config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
-from pld_slam.mapping.map_ba import BaReport, adjust_keyframes
+from pld_slam.mapping.map_ba import BaReport, MapBaOptions, adjust_keyframes
 
 
 def local_bundle_adjustment(
@@ -18,4 +18,4 @@ def local_bundle_adjustment(
 ) -> BaReport | None:
     """Run local BA around ``keyframe`` and write the result into ``world_map``; None with nothing to adjust."""
     window = [keyframe.id, *world_map.covisibility.neighbours(keyframe.id, limit=config.mapping.local_ba_window)]
-    return adjust_keyframes(world_map, window, camera, config, config.mapping.local_ba_max_nfev)
+    return adjust_keyframes(world_map, window, camera, MapBaOptions.of(config), config.mapping.local_ba_max_nfev)

@@ -45,6 +45,30 @@ from pld_slam.optim.line_reprojection import endpoints_away_from_border
 
 
 @dataclass(frozen=True)
+class MapBaOptions:
+    """What a bundle adjustment of the map reads of the configuration.
+
+    scale_factor : ORB pyramid scale (``points.scale_factor``): a point's sigmas grow with its octave.
+    disparity_sigma_px : a disparity's sigma at octave 0 (``points.disparity_sigma_px``).
+    line_sigma_px : a line endpoint's sigma (``tracking.line_sigma_px``).
+    border_margin_px : endpoints this near the border take no horizontal term (``tracking.border_margin_px``).
+    use_line_vertical, use_line_horizontal : the two line terms (``lines.vertical_error``, ``lines.horizontal_error``).
+    """
+
+    scale_factor: float
+    disparity_sigma_px: float
+    line_sigma_px: float
+    border_margin_px: float
+    use_line_vertical: bool
+    use_line_horizontal: bool
+
+    @classmethod
+    def of(cls, config: Config) -> "MapBaOptions":
+        return cls(config.points.scale_factor, config.points.disparity_sigma_px, config.tracking.line_sigma_px,
+                   config.tracking.border_margin_px, config.lines.vertical_error, config.lines.horizontal_error)
+
+
+@dataclass(frozen=True)
 class BaReport:
     """What one bundle adjustment of the map did.
 
@@ -81,7 +105,7 @@ class _Observations:
 
 
 def adjust_keyframes(
-    world_map: Map, free: list[int], camera: StereoCamera, config: Config, max_nfev: int,
+    world_map: Map, free: list[int], camera: StereoCamera, options: MapBaOptions, max_nfev: int,
     to_convergence: bool = False,
 ) -> BaReport | None:
     """Bundle-adjust keyframes ``free`` (ids) and their landmarks, write the result into ``world_map``
@@ -104,16 +128,16 @@ def adjust_keyframes(
         fixed=fixed,
         points_w=world_map.points.geometry[point_ids],
         lines_w=world_map.lines.geometry[line_ids],
-        point_observations=_point_observations(world_map, points, keyframes, config),
-        line_observations=_line_observations(world_map, lines, keyframes, camera, config),
+        point_observations=_point_observations(world_map, points, keyframes, options),
+        line_observations=_line_observations(world_map, lines, keyframes, camera, options),
     )
-    options = BundleOptions(
-        use_line_vertical=config.lines.vertical_error,
-        use_line_horizontal=config.lines.horizontal_error,
+    solve = BundleOptions(
+        use_line_vertical=options.use_line_vertical,
+        use_line_horizontal=options.use_line_horizontal,
         max_nfev=max_nfev,
         **(TO_CONVERGENCE if to_convergence else {}),
     )
-    result = bundle_adjust(camera, problem, options)
+    result = bundle_adjust(camera, problem, solve)
     world_map.set_keyframe_poses(keyframes[~fixed], result.T_c_w[~fixed])
     world_map.set_landmark_geometry(world_map.points, point_ids, result.points_w)
     world_map.set_landmark_geometry(world_map.lines, line_ids, result.lines_w)
@@ -144,23 +168,23 @@ def _observations(world_map: Map, kind: Landmarks, landmarks: np.ndarray) -> _Ob
 
 
 def _point_observations(
-    world_map: Map, observed: _Observations, keyframes: np.ndarray, config: Config
+    world_map: Map, observed: _Observations, keyframes: np.ndarray, options: MapBaOptions
 ) -> BundlePointObservations:
     kind = world_map.points
     uv = world_map.feature_attribute(kind, "uv", observed.keyframe, observed.feature)
     u_right = world_map.feature_attribute(kind, "u_right", observed.keyframe, observed.feature)
     octave = world_map.feature_attribute(kind, "octave", observed.keyframe, observed.feature)
-    octave_sigma = config.points.scale_factor ** octave.astype(np.float64)
+    octave_sigma = options.scale_factor ** octave.astype(np.float64)
     return BundlePointObservations(
         keyframe=np.searchsorted(keyframes, observed.keyframe),
         point=observed.row,
         stereo_px=np.column_stack([uv, u_right]),
-        sigma_px=np.column_stack([octave_sigma, octave_sigma, config.points.disparity_sigma_px * octave_sigma]),
+        sigma_px=np.column_stack([octave_sigma, octave_sigma, options.disparity_sigma_px * octave_sigma]),
     )
 
 
 def _line_observations(
-    world_map: Map, observed: _Observations, keyframes: np.ndarray, camera: StereoCamera, config: Config
+    world_map: Map, observed: _Observations, keyframes: np.ndarray, camera: StereoCamera, options: MapBaOptions
 ) -> BundleLineObservations:
     endpoints = world_map.feature_attribute(world_map.lines, "endpoints", observed.keyframe, observed.feature)
     disparity = world_map.feature_attribute(world_map.lines, "disparity", observed.keyframe, observed.feature)
@@ -170,8 +194,8 @@ def _line_observations(
         line=observed.row,
         start_px=start_px,
         end_px=end_px,
-        sigma_px=np.full(len(observed.row), config.tracking.line_sigma_px),
-        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, config.tracking.border_margin_px),
+        sigma_px=np.full(len(observed.row), options.line_sigma_px),
+        horizontal_eligible=endpoints_away_from_border(camera, start_px, end_px, options.border_margin_px),
         right_start_px=start_px - np.column_stack([disparity[:, 0], np.zeros(len(disparity))]),
         right_end_px=end_px - np.column_stack([disparity[:, 1], np.zeros(len(disparity))]),
     )
