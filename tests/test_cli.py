@@ -585,6 +585,35 @@ def test_sigterm_while_the_files_are_written_waits_for_them_and_lists_them(synth
     assert json.loads((out / "summary.json").read_text())["completed"] is True
 
 
+SIGTERM_WHEN_OVER = """
+import atexit, os, signal, sys, time
+import click
+from pld_slam_cli.main import main
+
+def sigterm_now():
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)  # a Python handler runs here; the default action ends the process at once
+
+moment = sys.argv.pop(1)
+if moment == "atexit":  # registered first, so called last: during the interpreter's shutdown
+    atexit.register(sigterm_now)
+else:  # click's exit after the command returned
+    click_exit = click.Context.exit
+    click.Context.exit = lambda self, code=0: (sigterm_now(), click_exit(self, code))
+main()
+"""
+
+
+@pytest.mark.parametrize("moment", ["atexit", "click exit"])
+def test_sigterm_once_the_command_has_ended_ends_the_process_without_a_traceback(moment):
+    # Issue 43: SIGTERM in an atexit callback printed a 14-line traceback and exited 0; in click's exit,
+    # "Aborted!" and 1. The command's work is done: the signal ends the process, as late in shutdown.
+    child = subprocess.run([sys.executable, "-c", SIGTERM_WHEN_OVER, moment, "config"],
+                           capture_output=True, text=True, timeout=120)
+    assert (child.returncode, child.stderr) == (-signal.SIGTERM, "")
+    assert "\ntracking:\n" in child.stdout  # the command had printed the configuration
+
+
 def pose_rows(path) -> int:
     """Complete pose lines of a TUM file being written (0 while it does not exist)."""
     if not path.exists():
