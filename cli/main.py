@@ -16,6 +16,13 @@ file. It also reaches a process whose SIGINT is ignored (started in the backgrou
 shell or ``nohup``), so it is how `pld_slam.report.cells` stops a cell at its time limit
 (the cell's run, `pld_slam.report.cell_run`, has the same handler).
 
+Once the command has returned or raised (a run's files are written by then), Ctrl-C and
+SIGTERM get their default action back (`_command_over`): the process ends at once, killed
+by the signal, as it would late in the interpreter's shutdown anyway. Raised from a Python handler there,
+they printed a traceback from whatever atexit callback or thread join was running
+(``Exception ignored in atexit callback``) and exited 0, or ``Aborted!`` and 1 from click
+(issue 43). This holds for the console script (`main`), not for a command invoked in process.
+
 The commands are imported when one is invoked, not with this module: their imports
 (OpenCV, numba, evo, matplotlib) take seconds, and a Ctrl-C during them would otherwise
 escape as a Python traceback before the error policy above is in place.
@@ -64,7 +71,10 @@ class _ReportingGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         try:
-            return super().invoke(ctx)
+            try:
+                return super().invoke(ctx)
+            finally:
+                _command_over(ctx.obj)  # before any line is reported: a signal now ends the process
         except PldSlamError as error:
             _report(ctx, f"error: {error}", EXIT_USER_ERROR)
         except KeyboardInterrupt as interrupt:
@@ -76,6 +86,19 @@ class _ReportingGroup(click.Group):
         except Exception as error:  # a bug: keep the one-line promise, point at --verbose
             _report(ctx, f"internal error: {type(error).__name__}: {error} (run with --verbose for the traceback)",
                     EXIT_BUG)
+
+
+_SIGNALS_DEFAULT_WHEN_OVER = "signals_default_when_over"
+"""The key of ``ctx.obj`` with which `main` asks for `_command_over`'s signal dispositions."""
+
+
+def _command_over(obj) -> None:
+    """The command has ended: Ctrl-C and SIGTERM get their default action back (module docstring),
+    when the console script asked for it in the context's ``obj`` (`main`); a command invoked in
+    process keeps its caller's."""
+    if isinstance(obj, dict) and obj.get(_SIGNALS_DEFAULT_WHEN_OVER):
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_DFL)
 
 
 def _report(ctx: click.Context, line: str, exit_code: int) -> None:
@@ -96,6 +119,11 @@ def cli(ctx: click.Context, verbose: bool) -> None:
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point: SIGTERM stops a command as Ctrl-C does; once it has ended, both end the
+    process at once (module docstring)."""
     signal.signal(signal.SIGTERM, stop_on_sigterm)
-    sys.exit(cli(prog_name="pld-slam"))
+    obj = {_SIGNALS_DEFAULT_WHEN_OVER: True}
+    try:
+        sys.exit(cli(prog_name="pld-slam", obj=obj))
+    finally:  # --help, --version and usage errors end before a command is invoked
+        _command_over(obj)

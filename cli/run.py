@@ -141,16 +141,11 @@ def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tup
     return names
 
 
-def nothing_tracked(summary: dict) -> str | None:
-    """Why a run that tracked none of its frames failed: the first failed frame's reason and the likely
-    causes; None when it tracked a frame. Such a run's trajectory is identities, which must not pass as a result."""
-    frames = summary["frames"]
-    if frames == 0 or len(summary["tracking_failures"]) < frames:
-        return None
-    skipped = summary["skipped_frames"]
-    first = f" (frame {skipped[0]['index']}: {skipped[0]['reason']})" if skipped else ""
-    return (f"tracked none of the {frames} frames{first}; likely causes: left and right images swapped or "
-            "the same, images too dark (e.g. 12-bit data in 16-bit PNGs), or a calibration that does not fit them")
+def warn_of_lost_frames(summary: dict) -> None:
+    """A ``warning:`` line on stderr when the run lost frames short of an error (`pld_slam.eval.tracked_frames`)."""
+    tracking = summary["tracking"]
+    if tracking["verdict"] == "some_lost":
+        click.echo(f"warning: {summary['root']}: {tracking['message']}", err=True)
 
 
 def not_a_stereo_pair(summary: dict) -> str | None:
@@ -214,7 +209,9 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     the run goes (run.lock): a second run into it is refused. A run that tracks
     none of its frames writes its files, then ends with an error (exit 2) naming the
     first failed frame and the likely causes; so does a run on images that are not a
-    stereo pair (swapped, the same image twice). A pair whose matches leave their rows
+    stereo pair (swapped, the same image twice), and one that tracks under 90 % of its
+    frames (with 2 lost or more; the error says where the losses start and the likely
+    cause); one that tracks under 95 % gets a warning. A pair whose matches leave their rows
     (a right camera out of sync) gets a warning. --rerun records the run into FILE.rrd
     for the rerun viewer (open it with: rerun FILE.rrd).
     """
@@ -223,10 +220,15 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     out = out if out is not None else Path("runs") / sequence.name
     summary = run_and_write(sequence, out, config_paths, overrides, max_frames, save_dynamic, formats, rerun)
     click.echo(json.dumps(summary, indent=2) if as_json else f"{format_run_table(summary)}\nwrote {out}/")
-    failure = nothing_tracked(summary)
-    if failure is not None:
-        raise TrackingError(failure)
+    # Nothing tracked, not a stereo pair, too few tracked (record 0024): the run's files are written, but its
+    # trajectory is mostly guesses and must not pass as a result. A pair that is no pair says more than a count.
+    tracking = summary["tracking"]
+    if tracking["verdict"] == "none_tracked":
+        raise TrackingError(tracking["message"])
     not_a_pair = not_a_stereo_pair(summary)
     if not_a_pair is not None:
         raise DatasetError(not_a_pair)
+    if tracking["verdict"] == "few_tracked":
+        raise TrackingError(f"{summary['root']}: {tracking['message']}")
     warn_of_stereo_pair(summary)
+    warn_of_lost_frames(summary)

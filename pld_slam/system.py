@@ -261,7 +261,7 @@ class System:
             if not self.tracker.can_be_reference(features):
                 reason = (f"{self.sequence.frames.describe(index)}: too few features to start the trajectory on "
                           f"({len(features.points)} stereo points, {len(features.lines)} lines)")
-                return self._before_first_usable(index, timestamp, reason, start, features.agreement)
+                return self._before_first_usable(index, timestamp, reason, start, features)
             self._started = True
         moving_mask = self.sequence.dynamic_mask(index) if self.config.dynamic.from_masks else None
         tracked = self.tracker.track(features, moving_mask, (frame.left, frame.right))
@@ -283,16 +283,19 @@ class System:
         return record
 
     def _before_first_usable(
-        self, index: int, timestamp: float, reason: str, start: float, stereo: StereoAgreement | None = None,
+        self, index: int, timestamp: float, reason: str, start: float, features: StereoFeatures | None = None,
     ) -> FrameRecord:
         """The record of a frame before the first usable one: the identity, LOST, ``reason`` as why it was skipped
-        (``stereo``: its pair's agreement, when it was read).
+        (``features``: its stereo points and lines and its pair's agreement, when it was read; they tell
+        why a run lost it, `pld_slam.eval.tracked_frames`).
 
         The tracker never sees the frame, so the next frame is tracked as the first
         (the world); the record keeps the frame's row (module docstring).
         """
+        read = {} if features is None else {"n_points": len(features.points), "n_lines": len(features.lines),
+                                            "stereo": features.agreement}
         record = FrameRecord(index, timestamp, np.eye(4), TrackingStatus.LOST, TrackingCounts(),
-                             {"total": ms_since(start)}, skipped_reason=reason, stereo=stereo)
+                             {"total": ms_since(start)}, skipped_reason=reason, **read)
         return self._add(record, start)
 
     def _map_frame(

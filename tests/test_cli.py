@@ -40,7 +40,7 @@ from pld_slam.trajectory import Trajectory
 from pld_slam_cli.demo import DEMO_FOLDER, demo_command
 from pld_slam_cli.evaluate import scale_text
 from pld_slam_cli.main import EXIT_INTERRUPTED, EXIT_TERMINATED, EXIT_USER_ERROR, cli
-from pld_slam_cli.run import format_run_table, not_a_stereo_pair, nothing_tracked, skipped_frame_rows
+from pld_slam_cli.run import format_run_table, not_a_stereo_pair, skipped_frame_rows
 
 JSON_KEYS = {
     "ate_rmse_m", "ate_rot_rmse_deg", "ate_sim3_rmse_m", "sim3_scale", "path_ratio", "rpe_trans_rmse_m",
@@ -54,9 +54,10 @@ def run(*args: str):
 
 @pytest.fixture(scope="module")
 def synthetic_sequence(tmp_path_factory):
-    """A small dynamic sequence written by ``pld-slam synth``."""
+    """A small dynamic sequence written by ``pld-slam synth``: every frame tracked (at 160 x 120 it tracked
+    1 of 6, a run that now ends with an error, `pld_slam.eval.tracked_frames`)."""
     out = tmp_path_factory.mktemp("synth") / "seq"
-    result = run("synth", out, "--scenario", "dynamic", "--frames", 6, "--size", "160x120", "--seed", 3)
+    result = run("synth", out, "--scenario", "dynamic", "--frames", 6, "--size", "240x180", "--seed", 3)
     assert result.exit_code == 0, result.output
     return out
 
@@ -65,7 +66,7 @@ def test_synth_writes_a_sequence_the_loader_reads_with_ground_truth_and_masks(sy
     sequence = open_sequence(synthetic_sequence)
     assert sequence.layout == "kitti_odometry"
     assert len(sequence) == 6
-    assert (sequence.camera.width, sequence.camera.height) == (160, 120)
+    assert (sequence.camera.width, sequence.camera.height) == (240, 180)
     assert sequence.camera.baseline == pytest.approx(0.5)
     assert sequence.groundtruth is not None and len(sequence.groundtruth) == 6
     assert np.allclose(sequence.groundtruth.poses[0], np.eye(4))
@@ -73,7 +74,7 @@ def test_synth_writes_a_sequence_the_loader_reads_with_ground_truth_and_masks(sy
     masks = [sequence.dynamic_mask(i) for i in range(len(sequence))]
     assert all(0.0 < mask.mean() < 0.6 for mask in masks)
     frame = sequence[5]
-    assert frame.left.shape == (120, 160) and frame.left.dtype == np.uint8
+    assert frame.left.shape == (180, 240) and frame.left.dtype == np.uint8
 
 
 def test_synth_rejects_a_bad_size_as_a_usage_error(tmp_path):
@@ -242,9 +243,8 @@ def test_run_writes_trajectories_summary_and_plot(synthetic_sequence, tmp_path):
     result = run("run", synthetic_sequence, "--out", out, "--max-frames", 4)
     assert result.exit_code == 0, result.output
     assert "ATE RMSE" in result.output and "total ms/frame" in result.output
-    # 3 of these 4 tiny frames fail to track: their poses are the motion model's, the truth
-    # spreads over less than ten times their error, and no scale is read off them
-    assert re.search(r"^scale \(sim3\) / path +n/a$", result.output, re.M)
+    assert re.search(r"^tracking failures +0$", result.output, re.M)
+    assert re.search(r"^scale \(sim3\) / path +[0-9.]+ / [0-9.]+ \([0-9.]+ % (long|short)\)$", result.output, re.M)
     assert "loop ms/keyframe" in result.output and re.search(r"loops closed \(candidates\) +0 \(0\)", result.output)
     kitti = read_kitti(out / "trajectory.kitti.txt")
     assert len(kitti) == 4 and np.allclose(kitti.poses[0], np.eye(4))
@@ -379,7 +379,7 @@ def test_a_ground_truth_pose_that_is_not_finite_stops_the_run_naming_its_file_an
         (1, 2, "nan", "cx of P0 is nan, not a finite number"),
         (2, 3, "-inf", "tx of P1 is -inf, not a finite number"),
         (1, 0, "inf", "fx of P0 is inf, not a finite number"),
-        (1, 2, "900", "cx of P0 is 900, outside the image (0 to its width, 160 px)"),
+        (1, 2, "900", "cx of P0 is 900, outside the image (0 to its width, 240 px)"),
         (1, 5, "-192", "fy of P0 is -192; a focal length must be positive"),
     ],
 )
@@ -470,14 +470,6 @@ def test_a_run_on_images_that_are_not_a_stereo_pair_ends_with_an_error_naming_th
     summary = {"root": "/data/seq", "stereo_pair": {"verdict": "not_a_pair", "warning": "not a stereo pair: ..."}}
     assert not_a_stereo_pair(summary) == "/data/seq: not a stereo pair: ..."
     assert not_a_stereo_pair({**summary, "stereo_pair": {"verdict": "rows_disagree", "warning": "x"}}) is None
-
-
-def test_a_run_fails_only_when_it_tracked_no_frame():
-    def summary(frames: int, lost: int) -> dict:
-        return {"frames": frames, "tracking_failures": list(range(lost)), "skipped_frames": []}
-
-    assert nothing_tracked(summary(6, 5)) is None and nothing_tracked(summary(0, 0)) is None
-    assert nothing_tracked(summary(6, 6)).startswith("tracked none of the 6 frames; likely causes: ")
 
 
 @pytest.fixture
@@ -593,6 +585,35 @@ def test_sigterm_while_the_files_are_written_waits_for_them_and_lists_them(synth
     assert json.loads((out / "summary.json").read_text())["completed"] is True
 
 
+SIGTERM_WHEN_OVER = """
+import atexit, os, signal, sys, time
+import click
+from pld_slam_cli.main import main
+
+def sigterm_now():
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)  # a Python handler runs here; the default action ends the process at once
+
+moment = sys.argv.pop(1)
+if moment == "atexit":  # registered first, so called last: during the interpreter's shutdown
+    atexit.register(sigterm_now)
+else:  # click's exit after the command returned
+    click_exit = click.Context.exit
+    click.Context.exit = lambda self, code=0: (sigterm_now(), click_exit(self, code))
+main()
+"""
+
+
+@pytest.mark.parametrize("moment", ["atexit", "click exit"])
+def test_sigterm_once_the_command_has_ended_ends_the_process_without_a_traceback(moment):
+    # Issue 43: SIGTERM in an atexit callback printed a 14-line traceback and exited 0; in click's exit,
+    # "Aborted!" and 1. The command's work is done: the signal ends the process, as late in shutdown.
+    child = subprocess.run([sys.executable, "-c", SIGTERM_WHEN_OVER, moment, "config"],
+                           capture_output=True, text=True, timeout=120)
+    assert (child.returncode, child.stderr) == (-signal.SIGTERM, "")
+    assert "\ntracking:\n" in child.stdout  # the command had printed the configuration
+
+
 def pose_rows(path) -> int:
     """Complete pose lines of a TUM file being written (0 while it does not exist)."""
     if not path.exists():
@@ -612,14 +633,19 @@ def test_run_table_names_skipped_files_and_says_what_the_accuracy_covers_with_a_
     out = tmp_path / "run"
     child = subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence), "--out", str(out)],
                            capture_output=True, text=True, timeout=300)
-    assert child.returncode == 0, child.stderr
-    assert child.stderr == ""  # no library noise (libpng, OpenCV WARN), no progress bar off a terminal
+    # 4 of 6 frames tracked is too few (`pld_slam.eval.tracked_frames`): the table, then one error line on stderr,
+    # and nothing else there (no library noise: libpng, OpenCV WARN; no progress bar off a terminal)
+    assert child.returncode == EXIT_USER_ERROR, child.stderr
+    assert child.stderr.splitlines() == [
+        f"error: {sequence}: tracked 4 of the 6 frames (67 %; a run must track 90 %): 2 lost, the first at frame 2; "
+        f"2 of them unreadable (frame 2: {truncated}: cannot read image (not an image, or corrupt)); likely cause: "
+        "image files missing, empty or corrupt"]
     table = child.stdout.splitlines()
     start = next(row for row, line in enumerate(table) if re.fullmatch(r"skipped frames +2", line))
     blank = " " * (len(table[start]) - 1)
     assert table[start + 1] == f"{blank}frame 2: {truncated}: cannot read image (not an image, or corrupt)"
     assert table[start + 2] == (f"{blank}frame 4: {sequence / 'image_0' / '000004.png'}: image is 80x60 "
-                                "but the calibration is for 160x120")
+                                "but the calibration is for 240x180")
     assert f"{blank}evaluated on 5 of 6 frames" in table
     assert any(re.fullmatch(r"real-time factor +[0-9.]+ \(sequence time at 10 Hz, frame_rate of synth.json "
                             r"/ wall time; above 1 is faster than real time\)", line) for line in table)

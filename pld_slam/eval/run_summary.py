@@ -18,6 +18,7 @@ from pld_slam.eval.dynamic_labels import LabelCounts, MaskScores
 from pld_slam.eval.loop_truth import score_loops
 from pld_slam.eval.metrics import EvalResult, evaluate
 from pld_slam.eval.stereo_pair import stereo_pair_summary
+from pld_slam.eval.tracked_frames import tracked_frames_summary
 from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.system import STAGES, RunResult
 from pld_slam.tracking.tracker import TrackingStatus
@@ -252,6 +253,7 @@ def summarise_run(
         "tracking_failures": [r.index for r in records if r.status is TrackingStatus.LOST],
         "recovered_frames": [r.index for r in records if r.status is TrackingStatus.RECOVERED],
         "skipped_frames": [{"index": r.index, "reason": r.skipped_reason} for r in records if r.skipped_reason],
+        "tracking": tracked_frames_summary(records),
         "timing_ms": stage_timing(result),
         "wall_seconds": result.wall_seconds,
         "kernels_seconds": result.kernels_seconds,
