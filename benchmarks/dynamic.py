@@ -69,7 +69,8 @@ def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
     """Summary of one run (the sequence's family config) with the detectors switched by ``overrides``;
     the labels scored against the sequence's masks where it has them."""
     run_config = load_run_config(sequence, overrides=overrides)
-    scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
+    margin_px = run_config.config.dynamic.mask_margin_px
+    scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence, margin_px)
     system = System(sequence, run_config.config, [] if scores is None else [scores])
     system.run()
     return summarise_run(sequence, system.result, run_config.config, run_config.sources, scores)

@@ -181,6 +181,21 @@ class FiltersConfig:
     line_llg_factor: float = _param(
         2.0, "a match is an outlier when its angle or midpoint shift exceeds this times the LLG mean (paper: 2)", 0.0
     )
+    point_grid_min_deviation_px: float = _param(
+        3.0, "a point match whose grid_cval deviation is below this [px] is never an outlier (noise never rejects)",
+        0.0, 1000.0
+    )
+    point_grid_min_cell_matches: int = _param(
+        3, "cells of the point filter with fewer matches than this are not judged: all their matches are kept",
+        1, 10_000
+    )
+    line_llg_min_angle_change_deg: float = _param(
+        5.0, "a line match whose direction changes less than this [deg] is never an outlier by angle", 0.0, 90.0
+    )
+    line_llg_min_midpoint_shift_px: float = _param(
+        20.0, "a line match whose midpoint moves less than this [px] is never an outlier by shift (LSD's endpoints "
+        "slide along the line)", 0.0, 10_000.0
+    )
 
 
 @dataclass(frozen=True)
@@ -253,6 +268,14 @@ class DynamicConfig:
     from_masks: bool = _param(
         False, "take the labels from the sequence's dynamic_masks/ instead of the two detectors (ground truth or a "
         "segmentation: the best any detector could do)"
+    )
+    mask_margin_px: int = _param(
+        2, "a feature within this many pixels of the moving-object mask lies on it (from_masks' labels and the run "
+        "summary's mask scores: a corner on an object's outline moves with it)", 0, 100
+    )
+    static_world_hypotheses: int = _param(
+        200, "RANSAC hypotheses (triples of stereo matches) per coherent motion of the static-world check "
+        "(pld_slam.tracking.static_world)", 1, 100_000
     )
 
 
@@ -367,6 +390,28 @@ class MappingConfig:
     see_through: bool = _param(
         True, "a point landmark missed where the stereo pair sees a farther surface, or found by a keypoint without a "
         "stereo match where the pair shows another depth, counts toward its dynamic streak"
+    )
+    mover_depth_tolerance: float = _param(
+        0.2, "a missed point landmark lies under a mover when a stereo point labelled dynamic near its projection "
+        "stands within this share of its depth, and is hidden when one stands nearer than that", 0.0, 1.0
+    )
+    see_through_half_window: int = _param(
+        3, "see_through: half side of the window matched along the row [px at full resolution] (2 * this + 1 "
+        "square)", 1, 50
+    )
+    see_through_reach: float = _param(
+        3.0, "see_through: disparities are searched from 0 to this times the landmark's predicted disparity", 1.0, 100.0
+    )
+    see_through_depth_tolerance: float = _param(
+        0.1, "see_through: the surface the pair matches must lie farther than the landmark (another depth, for a "
+        "found one) by more than this share of its depth ...", 0.0, 10.0
+    )
+    see_through_margin_px: float = _param(
+        1.0, "... and by more than this disparity [px]", 0.0, 100.0
+    )
+    see_through_match_ratio: float = _param(
+        0.5, "... and cost at most this times both the cost at the landmark's own disparity and the window's "
+        "contrast", 0.0, 1.0
     )
 
 
