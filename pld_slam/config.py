@@ -233,6 +233,10 @@ class TrackingConfig:
     relocalisation_keyframes: int = _param(
         5, "keyframes most similar by GGS tried, in order, when the local map cannot pose a frame", 0
     )
+    pose_cost_tolerance: float = _param(
+        1e-5, "a pose-only solve stops when a step lowers the cost by less than this share of it (least_squares' "
+        "ftol; write a power of ten as 1.0e-6, YAML reads 1e-6 as text)", 1e-12, 0.5
+    )
 
 
 @dataclass(frozen=True)
@@ -339,6 +343,18 @@ class MappingConfig:
     local_ba_max_nfev: int = _param(
         10, "residual evaluations of each of the two local BA solves (robust, then without outliers)", 1
     )
+    ba_cost_tolerance: float = _param(
+        1e-3, "local and global BA stop when a step lowers the cost by less than this share of it (least_squares' "
+        "ftol; write 1.0e-6, not 1e-6): they refine a map tracking put near its optimum", 1e-12, 0.5
+    )
+    ba_lsmr_iterations: int = _param(
+        10, "LSMR iterations of each step of local and global BA (an inexact Gauss-Newton step the trust region "
+        "accepts or shrinks)", 1, 10_000
+    )
+    fusion_second_neighbours: int = _param(
+        5, "a new keyframe's landmarks are fused into its local_ba_window strongest covisible keyframes and this many "
+        "strongest covisible keyframes of each (ORB-SLAM2: 5)", 0, 1000
+    )
     tracking_keyframes: int = _param(
         20, "keyframes whose landmarks form the local map tracked by each frame", 1
     )
@@ -362,8 +378,16 @@ class MappingConfig:
         "(ORB-SLAM2: 60 deg)", 0.0, 3.142
     )
     min_observation_weight: int = _param(
-        4, "a landmark is culled when, two keyframes after its creation, its observations weigh less than this "
-        "(a stereo observation 2, a left-image-only one 1; ORB-SLAM2 stereo: more than 3)", 1
+        4, "a landmark is culled when, min_observation_age keyframes after its creation, its observations weigh less "
+        "than this (a stereo observation 2, a left-image-only one 1; ORB-SLAM2 stereo: more than 3)", 1
+    )
+    min_observation_age: int = _param(
+        2, "keyframes after its creation at which a new landmark's observations must weigh min_observation_weight "
+        "(ORB-SLAM2: 2)", 0, 1000
+    )
+    recent_landmark_keyframes: int = _param(
+        3, "a new landmark is judged by min_found_ratio and min_observation_weight for this many keyframes after its "
+        "creation (ORB-SLAM2: 3)", 1, 1000
     )
     min_found_ratio: float = _param(
         0.25, "a new landmark is culled when matched in fewer than this share of the frames that should see it",

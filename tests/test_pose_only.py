@@ -7,6 +7,7 @@ import pytest
 from finite_differences import CAMERA, random_points_in_view, random_pose
 from scipy.optimize import least_squares
 
+from pld_slam.config import load_config
 from pld_slam.geometry.se3 import inverse, se3_exp, so3_log, transform_points
 from pld_slam.optim.line_reprojection import detected_line_directions
 from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
@@ -188,6 +189,19 @@ def test_noisy_points_recover_the_pose(seed):
     translation, rotation = pose_errors(result.T_c_w, T_true)
     assert result.success and translation < 0.02 and rotation < np.radians(0.05)
     assert np.mean(result.inliers.points) > 0.85
+
+
+def test_the_solve_stops_at_the_configured_cost_tolerance():
+    """``tracking.pose_cost_tolerance`` (`PoseOnlyOptions.of`): a looser one stops the solve sooner, a
+    tighter one later."""
+    rng = np.random.default_rng(0)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 200, noise_px=1.0)
+    nfev = {}
+    for tolerance in ("1.0e-1", None, "1.0e-10"):
+        config = load_config(overrides=[] if tolerance is None else [f"tracking.pose_cost_tolerance={tolerance}"])
+        nfev[tolerance] = optimize_pose(CAMERA, perturbed(T_true), points, options=PoseOnlyOptions.of(config)).nfev
+    assert nfev["1.0e-1"] < nfev[None] < nfev["1.0e-10"]
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -182,10 +182,7 @@ class Tracker:
         self._reference_keyframe: KeyFrame | None = None
         self._frames_since_keyframe = 0
         self._keyframes = KeyframeSelector(config.keyframes)
-        self._pose_options = PoseOnlyOptions(
-            use_line_vertical=config.lines.vertical_error,
-            use_line_horizontal=config.lines.horizontal_error,
-        )
+        self._pose_options = PoseOnlyOptions.of(config)
         self._reference_tracker = ReferenceTracker(camera, config, self._pose_options)
         self._see_through = SeeThroughOptions.of(config.mapping)
         self._reference: ReferenceFrame | None = None
