@@ -97,6 +97,20 @@ class CalibrationConfig:
         "a used estimate is shrunk to its posterior mean for rig offsets spread this much about 0 [px] (0: not)",
         0.0,
     )
+    gating_rounds: int = _param(
+        4, "most rounds of choosing the pairs' inliers at the current offset and stepping to the profile's minimum",
+        1, 100
+    )
+    gating_tolerance_px: float = _param(
+        0.005, "a round that moves the offset by less than this [px] is the last", 0.0, 1.0
+    )
+    pair_pose_rounds: int = _param(
+        2, "pose-only solves of a frame pair's pose from its PnP pose, each on the last one's inliers (tracking: 4)",
+        1, 20
+    )
+    pair_pose_robust_rounds: int = _param(
+        1, "... of which the first this many use the Huber loss (tracking: 3)", 0, 20
+    )
 
 
 @dataclass(frozen=True)
@@ -232,6 +246,21 @@ class TrackingConfig:
     )
     relocalisation_keyframes: int = _param(
         5, "keyframes most similar by GGS tried, in order, when the local map cannot pose a frame", 0
+    )
+    prior_free_ratio: float = _param(
+        0.8, "ratio test of descriptor matches without a pose prior (relocalisation, loop check, stereo calibration): "
+        "best < ratio * second best (ORB-SLAM2's relocalisation: 0.75-0.8)", 0.0, 1.0
+    )
+    pnp_min_inliers: int = _param(
+        30, "fewest PnP inliers (and descriptor matches to try PnP on) of a pose without a prior (relocalisation, "
+        "stereo calibration; the loop check asks loop.min_inliers matches)", 4, 10_000
+    )
+    pnp_iterations: int = _param(300, "RANSAC iterations of the PnP pose without a prior", 1, 100_000)
+    pnp_confidence: float = _param(
+        0.999, "RANSAC of the PnP pose stops early once a pose is right with this probability", 0.01, 0.999999
+    )
+    pnp_reprojection_px: float = _param(
+        3.0, "a PnP RANSAC inlier reprojects within this many pixels [px at octave 0]", 0.1, 100.0
     )
     pose_cost_tolerance: float = _param(
         1e-5, "a pose-only solve stops when a step lowers the cost by less than this share of it (least_squares' "
@@ -481,6 +510,22 @@ class LoopConfig:
         0.2, "share of common features for a pose-graph edge (paper: 20%)", 0.0, 1.0
     )
     pose_graph_max_nfev: int = _param(30, "residual evaluations of the pose-graph solve", 1)
+    bow_common_words_ratio: float = _param(
+        0.8, "bow: a candidate shares at least this share of the most words any keyframe shares with the new one "
+        "(ORB-SLAM2: 0.8)", 0.0, 1.0
+    )
+    bow_group_neighbours: int = _param(
+        10, "bow: strongest covisible neighbours of a candidate that join its group's accumulated score (ORB-SLAM2: "
+        "10)", 0, 1000
+    )
+    bow_retain_ratio: float = _param(
+        0.75, "bow: a group is a candidate when its accumulated score exceeds this share of the best group's "
+        "(ORB-SLAM2: 0.75)", 0.0, 1.0
+    )
+    bow_covisible_window: int = _param(
+        10, "bow_covisible_check: strongest covisible keyframes of the new one in which the loop's pose is tried "
+        "(ORB-SLAM3: 10)", 1, 1000
+    )
 
 
 @dataclass(frozen=True)
