@@ -50,6 +50,10 @@ class SystemConfig:
         "process", "where prefetch extracts: a forked child process (Linux, where forking is safe; else a thread) "
         "or a thread"
     )
+    prefetch_frames: int = _param(
+        3, "prefetch reads and extracts this many frames ahead of the one tracked (same output; fewer leave the "
+        "worker idle through a keyframe, each costs memory: about 1 MB on KITTI)", 1, 64
+    )
 
 
 @dataclass(frozen=True)
@@ -179,6 +183,26 @@ class LinesConfig:
     max_depth_baselines: float = _param(
         200.0, "farthest line endpoint, in baselines (disparity >= fx / this)", 0.01
     )
+    edge_search_px: int = _param(
+        3, "fld, edlines: a kept segment is moved onto the image's edge found up to this far on either side of it "
+        "[px] (LSD's segments are sub-pixel already)", 1, 20
+    )
+    edge_sample_spacing_px: float = _param(
+        3.0, "fld, edlines: the edge is sampled every this many pixels along the segment ...", 0.5, 100.0
+    )
+    edge_min_samples: int = _param(
+        6, "... at least this many times (a segment with fewer than half of them usable stays as detected) ...",
+        2, 1000
+    )
+    edge_max_samples: int = _param(32, "... and at most this many times", 2, 10_000)
+    edge_min_gradient: float = _param(
+        4.0, "fld, edlines: an edge sample counts only where the grey-level gradient across the segment exceeds this "
+        "[levels / px]", 0.0, 255.0
+    )
+    edge_outlier_px: float = _param(
+        1.0, "fld, edlines: edge samples farther than this from the segment's median offset are left out of the fit "
+        "[px]", 0.0, 20.0
+    )
 
 
 @dataclass(frozen=True)
@@ -262,6 +286,13 @@ class TrackingConfig:
     pnp_reprojection_px: float = _param(
         3.0, "a PnP RANSAC inlier reprojects within this many pixels [px at octave 0]", 0.1, 100.0
     )
+    pose_rounds: int = _param(
+        4, "solves of a frame's pose-only estimate, each on the inliers of the last (ORB-SLAM2: 4)", 1, 20
+    )
+    pose_robust_rounds: int = _param(
+        3, "... of which the first this many use the Huber loss (ORB-SLAM2: 3)", 0, 20
+    )
+    pose_max_nfev: int = _param(100, "residual evaluations allowed per pose-only solve", 1, 10_000)
     pose_cost_tolerance: float = _param(
         1e-5, "a pose-only solve stops when a step lowers the cost by less than this share of it (least_squares' "
         "ftol; write a power of ten as 1.0e-6, YAML reads 1e-6 as text)", 1e-12, 0.5
@@ -402,6 +433,13 @@ class MappingConfig:
         "(ORB-SLAM2: 0.8)",
         0.0, 1.0
     )
+    search_nearest_scale: float = _param(
+        0.8, "a map point is searched no nearer than this times the nearest distance its ORB scale invariance "
+        "allows ... (ORB-SLAM2: 0.8)", 0.01, 1.0
+    )
+    search_farthest_scale: float = _param(
+        1.2, "... and no farther than this times the farthest (ORB-SLAM2: 1.2)", 1.0, 100.0
+    )
     max_viewing_angle: float = _param(
         1.047, "a landmark seen more than this angle [rad] away from its mean viewing direction is not searched "
         "(ORB-SLAM2: 60 deg)", 0.0, 3.142
@@ -493,7 +531,11 @@ class LoopConfig:
         60, "point and line inliers the geometric check needs between a keyframe and its loop candidate's map", 1
     )
     max_drift_ratio: float = _param(
-        0.03, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
+        0.03, "a loop may move its keyframe by at most this share of the path since the candidate, plus "
+        "drift_allowance_m", 0.0
+    )
+    drift_allowance_m: float = _param(
+        1.0, "... plus this [m], whatever the path (a short path's drift is not a share of it)", 0.0, 1000.0
     )
     max_drift_deg: float = _param(20.0, "a loop may turn its keyframe by at most this [deg]", 0.0, 180.0)
     max_distance_m: float = _param(
@@ -521,6 +563,10 @@ class LoopConfig:
     bow_retain_ratio: float = _param(
         0.75, "bow: a group is a candidate when its accumulated score exceeds this share of the best group's "
         "(ORB-SLAM2: 0.75)", 0.0, 1.0
+    )
+    bow_covisible_inlier_share: float = _param(
+        0.5, "bow_covisible_check: a covisible keyframe confirms the loop with at least this share of min_inliers "
+        "inliers (ORB-SLAM3: 30 projection matches against 50-80 of the keyframe)", 0.0, 1.0
     )
     bow_covisible_window: int = _param(
         10, "bow_covisible_check: strongest covisible keyframes of the new one in which the loop's pose is tried "

@@ -311,7 +311,8 @@ def _add_features(features: dict[int, StereoFeatures], sequence: StereoSequence,
 
 def pair_pose_options(config: Config) -> PoseOnlyOptions:
     """The pose-only solves of a frame pair: ``calibration.pair_pose_rounds`` rounds, the first
-    ``calibration.pair_pose_robust_rounds`` robust, stopping at ``tracking.pose_cost_tolerance``."""
+    ``calibration.pair_pose_robust_rounds`` robust, each within ``tracking.pose_max_nfev`` evaluations and
+    stopping at ``tracking.pose_cost_tolerance``."""
     return dataclasses.replace(PoseOnlyOptions.of(config), rounds=config.calibration.pair_pose_rounds,
                                robust_rounds=config.calibration.pair_pose_robust_rounds)
 

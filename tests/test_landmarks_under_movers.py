@@ -7,7 +7,7 @@ import pytest
 from pld_slam.config import MappingConfig, load_config
 from pld_slam.frontend import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.matching.projection import _NEAREST_SCALE, LandmarkSnapshot
+from pld_slam.matching.projection import LandmarkSnapshot
 from pld_slam.tracking.local_map import missed_in_image, missed_near_movers
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
@@ -81,8 +81,10 @@ def test_a_landmark_beyond_its_search_range_is_judged_too():
         ids=np.array([10]), geometry=landmark, descriptors=np.zeros((1, 32), np.uint8),
         normals=np.array([[0.0, 0.0, 1.0]]), max_distance=np.array([40.0]),
     )
-    points_config = load_config().points
-    nearest_searched = _NEAREST_SCALE * 40.0 / points_config.scale_factor ** (points_config.n_levels - 1)
+    config = load_config()
+    points_config = config.points
+    nearest_searched = (config.mapping.search_nearest_scale * 40.0
+                        / points_config.scale_factor ** (points_config.n_levels - 1))
     assert nearest_searched > 5.0  # the search of the local map skips it
     points = stereo_points(np.array([[0.2, 0.0, 5.2]]))
     under = judged(seen_from_far, np.zeros(0, np.int64), points, np.array([True])).under_movers

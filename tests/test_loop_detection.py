@@ -184,6 +184,10 @@ def test_drift_gate_accepts_drift_sized_corrections_only():
     assert plausible_drift(correction(2.0, 3.0), path=50.0, config=CONFIG)  # 4 % of the path
     assert not plausible_drift(correction(23.0, 3.0), path=25.0, config=CONFIG)  # an aliased facade
     assert not plausible_drift(correction(1.0, 61.0), path=500.0, config=CONFIG)
+    # 3 % of 10 m plus ``loop.drift_allowance_m``: 1.3 m by default, 0.3 m without the allowance
+    assert plausible_drift(correction(1.2, 3.0), path=10.0, config=CONFIG)
+    no_allowance = dataclasses.replace(CONFIG, drift_allowance_m=0.0)
+    assert not plausible_drift(correction(1.2, 3.0), path=10.0, config=no_allowance)
 
 
 def test_a_loop_joins_keyframes_at_the_same_place_only():

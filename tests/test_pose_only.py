@@ -258,6 +258,29 @@ def test_rejection_rounds_flag_twenty_percent_gross_outliers(seed):
     assert np.mean(np.delete(result.inliers.lines, line_outliers)) > 0.85
 
 
+def test_the_rounds_and_evaluations_are_the_configured_ones():
+    """``tracking.pose_rounds``, ``tracking.pose_robust_rounds`` and ``tracking.pose_max_nfev`` reach the solve
+    (`PoseOnlyOptions.of`): 20 % gross outliers take the default four rounds, one when asked; a plain first
+    round ends elsewhere; two evaluations are too few to converge."""
+    rng = np.random.default_rng(0)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 150, 1.0)
+    outliers = rng.permutation(150)[:30]
+    shifted_px = points.stereo_px.copy()
+    shifted_px[outliers] += rng.choice([-1.0, 1.0], (30, 3)) * rng.uniform(15.0, 60.0, (30, 3))
+    points = dataclasses.replace(points, stereo_px=shifted_px)
+
+    def solved(*overrides: str):
+        options = PoseOnlyOptions.of(load_config(overrides=[f"tracking.{override}" for override in overrides]))
+        return optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points, options=options)
+
+    default = solved()
+    assert default.success and default.rounds == 4
+    assert solved("pose_rounds=1").rounds == 1
+    assert not np.array_equal(solved("pose_robust_rounds=0").T_c_w, default.T_c_w)
+    assert not solved("pose_max_nfev=2").success
+
+
 def test_rounds_skipped_at_a_fixed_point_do_not_change_the_result():
     rng = np.random.default_rng(10)
     T_true = random_pose(rng)

@@ -26,11 +26,11 @@ GGS) is accepted only when it passes every test here, cheapest first:
 2. Drift gate (not in the paper): the correction the loop makes to the current keyframe
    (from its tracked pose to the pose found) must be one that drift could have caused
    since the candidate: at most ``loop.max_drift_ratio`` (3 %) of the keyframes' path
-   between them plus 1 m, and ``loop.max_drift_deg`` (20 deg). Our tracking drifts by
-   about 1 % of the path or less, so a true loop passes with a margin; an aliased match
-   (a repeated facade, matched with nearly all inliers) makes a correction of metres or
-   tens of degrees, and a looser gate let one through and bent the map
-   (docs/decisions/0014-loop-verification.md).
+   between them plus ``loop.drift_allowance_m`` (1 m), and ``loop.max_drift_deg`` (20 deg).
+   Our tracking drifts by about 1 % of the path or less, so a true loop passes with a
+   margin; an aliased match (a repeated facade, matched with nearly all inliers) makes a
+   correction of metres or tens of degrees, and a looser gate let one through and bent the
+   map (docs/decisions/0014-loop-verification.md).
 3. Same place (not in the paper): the current keyframe, where the check places it, and
    the candidate must see the scene from the same place: camera centres at most
    ``loop.max_distance_m`` (3 m) apart and optical axes within ``loop.max_view_angle_deg``
@@ -146,15 +146,16 @@ def covisible_support(
     is carried to each of its ``loop.bow_covisible_window`` (10, ORB-SLAM3's
     ``nNumCovisibles``) strongest covisible keyframes through their tracked relative pose,
     and the candidate's map (the check's local map) is tracked into that keyframe from
-    there; a keyframe confirms the loop with at least half ``loop.min_inliers`` inliers
-    (ORB-SLAM3 asks 30 projection matches of each covisible keyframe against 50-80 of the
-    current one). Only keyframes of the current side count: ids after the candidate's plus
-    ``loop.exclude_recent_keyframes``, and not covisible with the candidate (after an
-    earlier loop or a fusion a later keyframe can be, and would confirm the candidate's map
-    from its own side). The evidence ORB-SLAM2 waits for from the next keyframes (group
-    consistency) is taken from keyframes already in the map, with no delay. ORB-SLAM3 also
-    carries a partial confirmation (fewer than ``needed``) to the next keyframes; we do not,
-    because group consistency already carries a candidate that persists.
+    there; a keyframe confirms the loop with at least ``loop.bow_covisible_inlier_share``
+    (half) of ``loop.min_inliers`` inliers (ORB-SLAM3 asks 30 projection matches of each
+    covisible keyframe against 50-80 of the current one). Only keyframes of the current side
+    count: ids after the candidate's plus ``loop.exclude_recent_keyframes``, and not
+    covisible with the candidate (after an earlier loop or a fusion a later keyframe can be,
+    and would confirm the candidate's map from its own side). The evidence ORB-SLAM2 waits
+    for from the next keyframes (group consistency) is taken from keyframes already in the
+    map, with no delay. ORB-SLAM3 also carries a partial confirmation (fewer than
+    ``needed``) to the next keyframes; we do not, because group consistency already carries
+    a candidate that persists.
     """
     T_w_c = keyframe.T_w_c
     candidate_side = around(world_map, candidate)
@@ -170,7 +171,7 @@ def covisible_support(
             camera, T_j_w, check.local_map, frame.features, frame.point_dynamic, frame.line_dynamic, config,
             pose_options, ReferenceMatches.empty(),
         )
-        found += tracking.tracked_landmarks >= config.loop.min_inliers / 2
+        found += tracking.tracked_landmarks >= config.loop.bow_covisible_inlier_share * config.loop.min_inliers
     return found
 
 
@@ -193,7 +194,7 @@ def path_length(world_map: Map, first: int, last: int) -> float:
 def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> bool:
     """Whether a keyframe's correction ``T_c_new_c_old`` (4, 4) could be drift over ``path`` [m] (module docstring)."""
     translation, angle = motion_size(correction)
-    return translation <= config.max_drift_ratio * path + 1.0 and angle <= config.max_drift_deg
+    return translation <= config.max_drift_ratio * path + config.drift_allowance_m and angle <= config.max_drift_deg
 
 
 def same_place(T_i_w: np.ndarray, T_j_w: np.ndarray, config: LoopConfig) -> bool:

@@ -31,9 +31,10 @@ is an outlier. A line passing its vertical test but failing the horizontal one k
 vertical term and loses only the horizontal one: the paper reserves that term for
 trustworthy endpoints, and a failed test says that the endpoint (often cut short by an
 occlusion), not the line, is off. `optimize_pose_rejecting_outliers` repeats the solve
-over rounds as ORB-SLAM2's ``PoseOptimization`` does (4 rounds, Huber in the first 3),
-except that each round starts from the previous estimate instead of the initial one, and
-that rounds which would repeat a fixed point are skipped.
+over rounds as ORB-SLAM2's ``PoseOptimization`` does (``tracking.pose_rounds`` (4) rounds,
+Huber in the first ``tracking.pose_robust_rounds`` (3)), except that each round starts
+from the previous estimate instead of the initial one, and that rounds which would repeat
+a fixed point are skipped.
 
 Speed. The tracker calls this once per frame, with a budget of ~15 ms for ~700 points
 and ~100 lines (`benchmarks/pose_solver_speed.py` measures it). Each round evaluates the
@@ -60,8 +61,8 @@ initial pose is rank deficient (smallest singular value below ``rank_tolerance``
 the largest: e.g. points all on one 3D line leave the rotation about it free). The rank
 test catches exact degeneracy only: lines parallel in space with only vertical errors
 leave the translation along them weak but, with noisy detections, not exactly free; the
-tracker judges such poses by its inlier counts. A solve that stops at ``max_nfev`` is a
-failure too.
+tracker judges such poses by its inlier counts. A solve that stops at ``max_nfev``
+(``tracking.pose_max_nfev``, 100) is a failure too.
 """
 
 import dataclasses
@@ -110,9 +111,9 @@ class PoseOnlyOptions(ResidualOptions):
         (docs/decisions/0013-pose-only-solver.md).
     """
 
-    rounds: int = 4
-    robust_rounds: int = 3
-    max_nfev: int = 100
+    rounds: int = TrackingConfig.pose_rounds
+    robust_rounds: int = TrackingConfig.pose_robust_rounds
+    max_nfev: int = TrackingConfig.pose_max_nfev
     min_residuals: int = 12
     rank_tolerance: float = 1e-9
     ftol: float = TrackingConfig.pose_cost_tolerance
@@ -120,9 +121,12 @@ class PoseOnlyOptions(ResidualOptions):
     @classmethod
     def of(cls, config: Config) -> "PoseOnlyOptions":
         """The solve ``config`` sets: the two line terms (``lines.vertical_error``,
-        ``lines.horizontal_error``) and ``tracking.pose_cost_tolerance``."""
+        ``lines.horizontal_error``), the rounds, evaluations and cost tolerance (``tracking.pose_rounds``,
+        ``tracking.pose_robust_rounds``, ``tracking.pose_max_nfev``, ``tracking.pose_cost_tolerance``)."""
+        tracking = config.tracking
         return cls(use_line_vertical=config.lines.vertical_error, use_line_horizontal=config.lines.horizontal_error,
-                   ftol=config.tracking.pose_cost_tolerance)
+                   rounds=tracking.pose_rounds, robust_rounds=tracking.pose_robust_rounds,
+                   max_nfev=tracking.pose_max_nfev, ftol=tracking.pose_cost_tolerance)
 
 
 class PoseOnlyStatus(enum.Enum):
