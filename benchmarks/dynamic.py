@@ -69,7 +69,8 @@ def run_variant(sequence: StereoSequence, overrides: tuple[str, ...]) -> dict:
     """Summary of one run (the sequence's family config) with the detectors switched by ``overrides``;
     the labels scored against the sequence's masks where it has them."""
     run_config = load_run_config(sequence, overrides=overrides)
-    scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
+    margin_px = run_config.config.dynamic.mask_margin_px
+    scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence, margin_px)
     system = System(sequence, run_config.config, [] if scores is None else [scores])
     system.run()
     return summarise_run(sequence, system.result, run_config.config, run_config.sources, scores)
@@ -179,15 +180,16 @@ def parked_run(folder: Path, seed: int, extra: tuple[str, ...]) -> list[dict]:
     """One ``parked_then_moving`` run with both detectors: a row per car that pulled out (module docstring)."""
     sequence = open_sequence(folder)
     size = (sequence.camera.width, sequence.camera.height)
-    watch = MoverLandmarks(build_scenario("parked_then_moving", len(sequence), size, seed), KEYFRAMES_AFTER_START)
+    config = load_run_config(sequence, overrides=extra + VARIANTS["both"]).config
+    watch = MoverLandmarks(build_scenario("parked_then_moving", len(sequence), size, seed), KEYFRAMES_AFTER_START,
+                           config.mapping.min_observation_age)
     system: System
 
     def on_record(record: FrameRecord) -> None:
         if record.keyframe is not None:
             watch.on_keyframe(system.local_mapping.map, record.reference_keyframe)
 
-    system = System(sequence, load_run_config(sequence, overrides=extra + VARIANTS["both"]).config,
-                    record_observer=on_record)
+    system = System(sequence, config, record_observer=on_record)
     system.run()
     return [{"seed": seed} | row for row in watch.rows()]
 

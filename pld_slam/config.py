@@ -50,6 +50,10 @@ class SystemConfig:
         "process", "where prefetch extracts: a forked child process (Linux, where forking is safe; else a thread) "
         "or a thread"
     )
+    prefetch_frames: int = _param(
+        3, "prefetch reads and extracts this many frames ahead of the one tracked (same output; fewer leave the "
+        "worker idle through a keyframe, each costs memory: about 1 MB on KITTI)", 1, 64
+    )
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,20 @@ class CalibrationConfig:
         0.0,
         "a used estimate is shrunk to its posterior mean for rig offsets spread this much about 0 [px] (0: not)",
         0.0,
+    )
+    gating_rounds: int = _param(
+        4, "most rounds of choosing the pairs' inliers at the current offset and stepping to the profile's minimum",
+        1, 100
+    )
+    gating_tolerance_px: float = _param(
+        0.005, "a round that moves the offset by less than this [px] is the last", 0.0, 1.0
+    )
+    pair_pose_rounds: int = _param(
+        2, "pose-only solves of a frame pair's pose from its PnP pose, each on the last one's inliers (tracking: 4)",
+        1, 20
+    )
+    pair_pose_robust_rounds: int = _param(
+        1, "... of which the first this many use the Huber loss (tracking: 3)", 0, 20
     )
 
 
@@ -165,6 +183,26 @@ class LinesConfig:
     max_depth_baselines: float = _param(
         200.0, "farthest line endpoint, in baselines (disparity >= fx / this)", 0.01
     )
+    edge_search_px: int = _param(
+        3, "fld, edlines: a kept segment is moved onto the image's edge found up to this far on either side of it "
+        "[px] (LSD's segments are sub-pixel already)", 1, 20
+    )
+    edge_sample_spacing_px: float = _param(
+        3.0, "fld, edlines: the edge is sampled every this many pixels along the segment ...", 0.5, 100.0
+    )
+    edge_min_samples: int = _param(
+        6, "... at least this many times (a segment with fewer than half of them usable stays as detected) ...",
+        2, 1000
+    )
+    edge_max_samples: int = _param(32, "... and at most this many times", 2, 10_000)
+    edge_min_gradient: float = _param(
+        4.0, "fld, edlines: an edge sample counts only where the grey-level gradient across the segment exceeds this "
+        "[levels / px]", 0.0, 255.0
+    )
+    edge_outlier_px: float = _param(
+        1.0, "fld, edlines: edge samples farther than this from the segment's median offset are left out of the fit "
+        "[px]", 0.0, 20.0
+    )
 
 
 @dataclass(frozen=True)
@@ -180,6 +218,21 @@ class FiltersConfig:
     line_llg: bool = _param(True, "line mismatch filter by local line groups (LLG)")
     line_llg_factor: float = _param(
         2.0, "a match is an outlier when its angle or midpoint shift exceeds this times the LLG mean (paper: 2)", 0.0
+    )
+    point_grid_min_deviation_px: float = _param(
+        3.0, "a point match whose grid_cval deviation is below this [px] is never an outlier (noise never rejects)",
+        0.0, 1000.0
+    )
+    point_grid_min_cell_matches: int = _param(
+        3, "cells of the point filter with fewer matches than this are not judged: all their matches are kept",
+        1, 10_000
+    )
+    line_llg_min_angle_change_deg: float = _param(
+        5.0, "a line match whose direction changes less than this [deg] is never an outlier by angle", 0.0, 90.0
+    )
+    line_llg_min_midpoint_shift_px: float = _param(
+        20.0, "a line match whose midpoint moves less than this [px] is never an outlier by shift (LSD's endpoints "
+        "slide along the line)", 0.0, 10_000.0
     )
 
 
@@ -218,6 +271,32 @@ class TrackingConfig:
     relocalisation_keyframes: int = _param(
         5, "keyframes most similar by GGS tried, in order, when the local map cannot pose a frame", 0
     )
+    prior_free_ratio: float = _param(
+        0.8, "ratio test of descriptor matches without a pose prior (relocalisation, loop check, stereo calibration): "
+        "best < ratio * second best (ORB-SLAM2's relocalisation: 0.75-0.8)", 0.0, 1.0
+    )
+    pnp_min_inliers: int = _param(
+        30, "fewest PnP inliers (and descriptor matches to try PnP on) of a pose without a prior (relocalisation, "
+        "stereo calibration; the loop check asks loop.min_inliers matches)", 4, 10_000
+    )
+    pnp_iterations: int = _param(300, "RANSAC iterations of the PnP pose without a prior", 1, 100_000)
+    pnp_confidence: float = _param(
+        0.999, "RANSAC of the PnP pose stops early once a pose is right with this probability", 0.01, 0.999999
+    )
+    pnp_reprojection_px: float = _param(
+        3.0, "a PnP RANSAC inlier reprojects within this many pixels [px at octave 0]", 0.1, 100.0
+    )
+    pose_rounds: int = _param(
+        4, "solves of a frame's pose-only estimate, each on the inliers of the last (ORB-SLAM2: 4)", 1, 20
+    )
+    pose_robust_rounds: int = _param(
+        3, "... of which the first this many use the Huber loss (ORB-SLAM2: 3)", 0, 20
+    )
+    pose_max_nfev: int = _param(100, "residual evaluations allowed per pose-only solve", 1, 10_000)
+    pose_cost_tolerance: float = _param(
+        1e-5, "a pose-only solve stops when a step lowers the cost by less than this share of it (least_squares' "
+        "ftol; write a power of ten as 1.0e-6, YAML reads 1e-6 as text)", 1e-12, 0.5
+    )
 
 
 @dataclass(frozen=True)
@@ -253,6 +332,14 @@ class DynamicConfig:
     from_masks: bool = _param(
         False, "take the labels from the sequence's dynamic_masks/ instead of the two detectors (ground truth or a "
         "segmentation: the best any detector could do)"
+    )
+    mask_margin_px: int = _param(
+        2, "a feature within this many pixels of the moving-object mask lies on it (from_masks' labels and the run "
+        "summary's mask scores: a corner on an object's outline moves with it)", 0, 100
+    )
+    static_world_hypotheses: int = _param(
+        200, "RANSAC hypotheses (triples of stereo matches) per coherent motion of the static-world check "
+        "(pld_slam.tracking.static_world)", 1, 100_000
     )
 
 
@@ -316,6 +403,18 @@ class MappingConfig:
     local_ba_max_nfev: int = _param(
         10, "residual evaluations of each of the two local BA solves (robust, then without outliers)", 1
     )
+    ba_cost_tolerance: float = _param(
+        1e-3, "local and global BA stop when a step lowers the cost by less than this share of it (least_squares' "
+        "ftol; write 1.0e-6, not 1e-6): they refine a map tracking put near its optimum", 1e-12, 0.5
+    )
+    ba_lsmr_iterations: int = _param(
+        10, "LSMR iterations of each step of local and global BA (an inexact Gauss-Newton step the trust region "
+        "accepts or shrinks)", 1, 10_000
+    )
+    fusion_second_neighbours: int = _param(
+        5, "a new keyframe's landmarks are fused into its local_ba_window strongest covisible keyframes and this many "
+        "strongest covisible keyframes of each (ORB-SLAM2: 5)", 0, 1000
+    )
     tracking_keyframes: int = _param(
         20, "keyframes whose landmarks form the local map tracked by each frame", 1
     )
@@ -334,13 +433,28 @@ class MappingConfig:
         "(ORB-SLAM2: 0.8)",
         0.0, 1.0
     )
+    search_nearest_scale: float = _param(
+        0.8, "a map point is searched no nearer than this times the nearest distance its ORB scale invariance "
+        "allows ... (ORB-SLAM2: 0.8)", 0.01, 1.0
+    )
+    search_farthest_scale: float = _param(
+        1.2, "... and no farther than this times the farthest (ORB-SLAM2: 1.2)", 1.0, 100.0
+    )
     max_viewing_angle: float = _param(
         1.047, "a landmark seen more than this angle [rad] away from its mean viewing direction is not searched "
         "(ORB-SLAM2: 60 deg)", 0.0, 3.142
     )
     min_observation_weight: int = _param(
-        4, "a landmark is culled when, two keyframes after its creation, its observations weigh less than this "
-        "(a stereo observation 2, a left-image-only one 1; ORB-SLAM2 stereo: more than 3)", 1
+        4, "a landmark is culled when, min_observation_age keyframes after its creation, its observations weigh less "
+        "than this (a stereo observation 2, a left-image-only one 1; ORB-SLAM2 stereo: more than 3)", 1
+    )
+    min_observation_age: int = _param(
+        2, "keyframes after its creation at which a new landmark's observations must weigh min_observation_weight "
+        "(ORB-SLAM2: 2)", 0, 1000
+    )
+    recent_landmark_keyframes: int = _param(
+        3, "a new landmark is judged by min_found_ratio and min_observation_weight for this many keyframes after its "
+        "creation (ORB-SLAM2: 3)", 1, 1000
     )
     min_found_ratio: float = _param(
         0.25, "a new landmark is culled when matched in fewer than this share of the frames that should see it",
@@ -367,6 +481,28 @@ class MappingConfig:
     see_through: bool = _param(
         True, "a point landmark missed where the stereo pair sees a farther surface, or found by a keypoint without a "
         "stereo match where the pair shows another depth, counts toward its dynamic streak"
+    )
+    mover_depth_tolerance: float = _param(
+        0.2, "a missed point landmark lies under a mover when a stereo point labelled dynamic near its projection "
+        "stands within this share of its depth, and is hidden when one stands nearer than that", 0.0, 1.0
+    )
+    see_through_half_window: int = _param(
+        3, "see_through: half side of the window matched along the row [px at full resolution] (2 * this + 1 "
+        "square)", 1, 50
+    )
+    see_through_reach: float = _param(
+        3.0, "see_through: disparities are searched from 0 to this times the landmark's predicted disparity", 1.0, 100.0
+    )
+    see_through_depth_tolerance: float = _param(
+        0.1, "see_through: the surface the pair matches must lie farther than the landmark (another depth, for a "
+        "found one) by more than this share of its depth ...", 0.0, 10.0
+    )
+    see_through_margin_px: float = _param(
+        1.0, "... and by more than this disparity [px]", 0.0, 100.0
+    )
+    see_through_match_ratio: float = _param(
+        0.5, "... and cost at most this times both the cost at the landmark's own disparity and the window's "
+        "contrast", 0.0, 1.0
     )
 
 
@@ -395,7 +531,11 @@ class LoopConfig:
         60, "point and line inliers the geometric check needs between a keyframe and its loop candidate's map", 1
     )
     max_drift_ratio: float = _param(
-        0.03, "a loop may move its keyframe by at most this share of the path since the candidate, plus 1 m", 0.0
+        0.03, "a loop may move its keyframe by at most this share of the path since the candidate, plus "
+        "drift_allowance_m", 0.0
+    )
+    drift_allowance_m: float = _param(
+        1.0, "... plus this [m], whatever the path (a short path's drift is not a share of it)", 0.0, 1000.0
     )
     max_drift_deg: float = _param(20.0, "a loop may turn its keyframe by at most this [deg]", 0.0, 180.0)
     max_distance_m: float = _param(
@@ -412,6 +552,26 @@ class LoopConfig:
         0.2, "share of common features for a pose-graph edge (paper: 20%)", 0.0, 1.0
     )
     pose_graph_max_nfev: int = _param(30, "residual evaluations of the pose-graph solve", 1)
+    bow_common_words_ratio: float = _param(
+        0.8, "bow: a candidate shares at least this share of the most words any keyframe shares with the new one "
+        "(ORB-SLAM2: 0.8)", 0.0, 1.0
+    )
+    bow_group_neighbours: int = _param(
+        10, "bow: strongest covisible neighbours of a candidate that join its group's accumulated score (ORB-SLAM2: "
+        "10)", 0, 1000
+    )
+    bow_retain_ratio: float = _param(
+        0.75, "bow: a group is a candidate when its accumulated score exceeds this share of the best group's "
+        "(ORB-SLAM2: 0.75)", 0.0, 1.0
+    )
+    bow_covisible_inlier_share: float = _param(
+        0.5, "bow_covisible_check: a covisible keyframe confirms the loop with at least this share of min_inliers "
+        "inliers (ORB-SLAM3: 30 projection matches against 50-80 of the keyframe)", 0.0, 1.0
+    )
+    bow_covisible_window: int = _param(
+        10, "bow_covisible_check: strongest covisible keyframes of the new one in which the loop's pose is tried "
+        "(ORB-SLAM3: 10)", 1, 1000
+    )
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ cannot start, or dies (killed, out of memory), costs only speed: the frames in f
 extracted again, the one asked for in the caller's thread, and from then on the worker is a
 thread (`FramePrefetcher.worker`, ``frontend_worker`` in ``summary.json``).
 
-Why `FRAMES_AHEAD` (3) frames ahead: the main thread's time per frame is uneven (a
+Why ``system.prefetch_frames`` (3) frames ahead: the main thread's time per frame is uneven (a
 keyframe's local mapping and BA more than doubles it), and with one frame ahead the worker
 sat idle through a keyframe and the main thread then waited for it on the next frames. On
 KITTI 06 (2 cores, mean / median ms per frame, medians of two interleaved runs each):
@@ -118,9 +118,6 @@ def extract_frame(sequence: StereoSequence, index: int, camera: StereoCamera, co
     clock.lap("frontend")
     return ExtractedFrame(index, frame, features, None, clock.laps)
 
-
-FRAMES_AHEAD = 3
-"""How many frames the worker extracts ahead of the one being processed (module docstring)."""
 
 BackgroundWorker = Literal["process", "thread"]
 """Where `FramePrefetcher` extracts ahead (module docstring)."""

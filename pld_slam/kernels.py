@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from pld_slam.config import MappingConfig
 from pld_slam.frontend.ggs import ggs_distances
 from pld_slam.frontend.points import sad_along_row
 from pld_slam.geometry.camera import StereoCamera
@@ -32,7 +33,7 @@ from pld_slam.optim.bundle_adjustment import (
     BundleProblem,
     bundle_adjust,
 )
-from pld_slam.tracking.see_through import shows_another_depth, shows_farther_surface
+from pld_slam.tracking.see_through import SeeThroughOptions, shows_another_depth, shows_farther_surface
 
 _CAMERA = StereoCamera(fx=100.0, fy=100.0, cx=40.0, cy=30.0, baseline=0.5, width=80, height=60)
 """The tiny camera of the warm-up calls."""
@@ -66,8 +67,9 @@ def _window_searches(left: np.ndarray, right: np.ndarray) -> None:
     """Both window searches of `pld_slam.tracking.see_through`, on pixel columns as it slices them."""
     pixels = np.array([[40.0, 30.0], [50.0, 20.0]]).astype(np.int64).T
     predicted = np.array([5.0, 4.0])
-    shows_farther_surface(left, right, pixels[0], pixels[1], predicted)
-    shows_another_depth(left, right, pixels[0], pixels[1], predicted)
+    options = SeeThroughOptions.of(MappingConfig())
+    shows_farther_surface(left, right, pixels[0], pixels[1], predicted, options)
+    shows_another_depth(left, right, pixels[0], pixels[1], predicted, options)
 
 
 def _ggs_query(rng: np.random.Generator) -> None:

@@ -33,14 +33,17 @@ each (`estimate_disparity_offset`):
 2. Each pair's stereo points are matched by descriptor (`pair_matches`). At the current
    offset, its relative pose is found by stereo PnP RANSAC on the first frame's 3D points
    (`pnp_pose`) and refined by the pose-only solver, which also picks the inliers
-   (`gate_pair`).
+   (`gate_pair`): ``calibration.pair_pose_rounds`` (2) solves, the first
+   ``calibration.pair_pose_robust_rounds`` (1) robust (the tracker's four rounds cost more
+   and move the estimate within its sigma: docs/decisions/0006-disparity-offset-self-calibration.md).
 3. The profile cost of an offset change ``delta``: every pair's first-frame points are
    triangulated again with disparities ``d - delta``, its second-frame right columns
    moved by ``+delta``, its pose solved again on the same inliers without a robust loss,
    and the whitened squared errors summed over all pairs. A Newton step on this profile
    (`profile_minimum`) moves the offset to its minimum inside
    ``[-calibration.max_offset_px, +calibration.max_offset_px]``; steps 2 and 3 repeat
-   from there until the offset moves by less than 0.005 px (`GATING_ROUNDS` at most):
+   from there until the offset moves by less than ``calibration.gating_tolerance_px``
+   (0.005 px), ``calibration.gating_rounds`` (4) at most:
    inliers picked at a wrong offset favour matches that the wrong offset explains.
 4. Its standard deviation: for whitened errors the profile is ``C0 + kappa (delta -
    offset)^2 / 2`` near the minimum and the offset's variance ``1 / kappa``, times the
@@ -96,20 +99,12 @@ from pld_slam.errors import DatasetError
 from pld_slam.frontend import StereoFeatures, extract_stereo_features
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.matching.observations import point_observations
-from pld_slam.matching.prior_free import MIN_PNP_INLIERS, match_without_prior, pnp_pose
+from pld_slam.matching.prior_free import PriorFreeOptions, match_without_prior, pnp_pose
 from pld_slam.optim.observations import PointObservations
 from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose, optimize_pose_rejecting_outliers
 
 PROFILE_STEP_PX = 0.05
 """Offset step [px] of the finite differences that give the profile's slope and curvature."""
-PAIR_POSE_OPTIONS = PoseOnlyOptions(rounds=2, robust_rounds=1)
-"""A pair's pose: one robust solve from the PnP pose, one on its inliers (the tracker's four
-rounds cost more and move the estimate within its sigma: docs/decisions/0006-disparity-offset-self-calibration.md)."""
-GATING_ROUNDS = 4
-"""Most rounds of choosing the pairs' inliers at the current offset and stepping to the
-profile's minimum (module docstring, steps 2-3)."""
-GATING_TOLERANCE_PX = 0.005
-"""A round that moves the offset by less than this [px] is the last."""
 
 
 @dataclass(frozen=True)
@@ -207,14 +202,15 @@ def estimate_disparity_offset(sequence: StereoSequence, config: Config) -> Dispa
         and (found := pair_matches(features[first], features[second], config)) is not None
     ]
     offset, sigma, pairs = 0.0, np.inf, []
-    for _ in range(GATING_ROUNDS):
+    pose_options = pair_pose_options(config)
+    for _ in range(calibration.gating_rounds):
         gated = (gate_pair(camera, found, anchor, offset, config) for anchor, found in matches)
         pairs = [pair for pair in gated if pair is not None]
         if _anchors_of(pairs) < calibration.min_anchors:
             break
         previous = offset
-        offset, sigma = profile_minimum(camera, pairs, offset, calibration.max_offset_px)
-        if abs(offset - previous) < GATING_TOLERANCE_PX:
+        offset, sigma = profile_minimum(camera, pairs, offset, calibration.max_offset_px, pose_options)
+        if abs(offset - previous) < calibration.gating_tolerance_px:
             break
 
     def finish(reason: str) -> DisparityOffsetEstimate:
@@ -313,13 +309,22 @@ def _add_features(features: dict[int, StereoFeatures], sequence: StereoSequence,
         features[index] = extract_stereo_features(frame.left, frame.right, sequence.camera, config.points, points_only)
 
 
+def pair_pose_options(config: Config) -> PoseOnlyOptions:
+    """The pose-only solves of a frame pair: ``calibration.pair_pose_rounds`` rounds, the first
+    ``calibration.pair_pose_robust_rounds`` robust, each within ``tracking.pose_max_nfev`` evaluations and
+    stopping at ``tracking.pose_cost_tolerance``."""
+    return dataclasses.replace(PoseOnlyOptions.of(config), rounds=config.calibration.pair_pose_rounds,
+                               robust_rounds=config.calibration.pair_pose_robust_rounds)
+
+
 def pair_matches(first: StereoFeatures, second: StereoFeatures, config: Config) -> PairMatches | None:
     """The stereo points of ``first`` matched by descriptor to stereo points of ``second``
-    (`match_without_prior`); None with fewer than `MIN_PNP_INLIERS`."""
-    found = match_without_prior(second.keypoints, first.points.descriptors, config.tracking.max_point_distance)
+    (`match_without_prior`); None with fewer than ``tracking.pnp_min_inliers``."""
+    prior_free = PriorFreeOptions.of(config)
+    found = match_without_prior(second.keypoints, first.points.descriptors, prior_free)
     stereo = found.current < second.keypoints.n_stereo
     before, after = found.previous[stereo], found.current[stereo]
-    if len(before) < MIN_PNP_INLIERS:
+    if len(before) < prior_free.min_inliers:
         return None
     observed = point_observations(np.zeros((len(after), 3)), second.keypoints, after, config.points)
     return PairMatches(first.points.uv[before], first.points.disparity[before], observed.stereo_px, observed.sigma_px)
@@ -345,28 +350,33 @@ def gate_pair(
     """The pair's relative pose and inliers at offset change ``delta`` (module docstring, step 2),
     or None when PnP or the pose-only solve fails."""
     observations = observations_at(camera, matches, delta)
-    pose = pnp_pose(camera, observations.points_w, observations.stereo_px[:, :2], config.system.seed)
+    prior_free = PriorFreeOptions.of(config)
+    pose = pnp_pose(camera, observations.points_w, observations.stereo_px[:, :2], prior_free)
     if pose is None:
         return None
-    refined = optimize_pose_rejecting_outliers(camera, pose.T_c_w, observations, options=PAIR_POSE_OPTIONS)
+    refined = optimize_pose_rejecting_outliers(camera, pose.T_c_w, observations, options=pair_pose_options(config))
     inliers = refined.inliers.points
-    if not refined.success or inliers.sum() < MIN_PNP_INLIERS:
+    if not refined.success or inliers.sum() < prior_free.min_inliers:
         return None
     return GatedPair(matches.subset(inliers), refined.T_c_w, anchor)
 
 
-def pair_cost(camera: StereoCamera, pair: GatedPair, delta: float) -> float:
-    """Half the sum of the pair's squared whitened errors, its pose re-solved at offset change ``delta`` [px]."""
-    solved = optimize_pose(camera, pair.T_second_first, observations_at(camera, pair.matches, delta), robust=False)
+def pair_cost(camera: StereoCamera, pair: GatedPair, delta: float, options: PoseOnlyOptions) -> float:
+    """Half the sum of the pair's squared whitened errors, its pose re-solved (``options``) at offset change
+    ``delta`` [px]."""
+    solved = optimize_pose(camera, pair.T_second_first, observations_at(camera, pair.matches, delta), options=options,
+                           robust=False)
     return 0.5 * float(solved.point_chi2.sum())
 
 
-def profile_costs(camera: StereoCamera, pairs: list[GatedPair], delta: float) -> np.ndarray:
+def profile_costs(camera: StereoCamera, pairs: list[GatedPair], delta: float, options: PoseOnlyOptions) -> np.ndarray:
     """`pair_cost` (P,) of every pair at offset change ``delta`` [px]; their sum is the profile cost."""
-    return np.array([pair_cost(camera, pair, delta) for pair in pairs])
+    return np.array([pair_cost(camera, pair, delta, options) for pair in pairs])
 
 
-def profile_minimum(camera: StereoCamera, pairs: list[GatedPair], centre: float, bound: float) -> tuple[float, float]:
+def profile_minimum(
+    camera: StereoCamera, pairs: list[GatedPair], centre: float, bound: float, options: PoseOnlyOptions
+) -> tuple[float, float]:
     """The offset change [px] at the profile's minimum, by one Newton step from ``centre``
     within ``[-bound, bound]``, and its standard deviation [px] (module docstring, step 4).
 
@@ -375,7 +385,7 @@ def profile_minimum(camera: StereoCamera, pairs: list[GatedPair], centre: float,
     stays at ``centre``, with an infinite deviation.
     """
     step = PROFILE_STEP_PX
-    below, cost, above = (profile_costs(camera, pairs, centre + k * step) for k in (-1, 0, 1))
+    below, cost, above = (profile_costs(camera, pairs, centre + k * step, options) for k in (-1, 0, 1))
     anchor = np.array([pair.anchor for pair in pairs])
     by_anchor = [np.bincount(anchor, weights=costs) for costs in (below, cost, above)]
     slope = (by_anchor[2] - by_anchor[0]) / (2.0 * step)

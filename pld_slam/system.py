@@ -49,7 +49,7 @@ from pld_slam.blas import one_blas_thread
 from pld_slam.config import Config
 from pld_slam.datasets import StereoFrame, StereoSequence, require_cameras
 from pld_slam.errors import ConfigError, Terminated
-from pld_slam.frame_extraction import FRAMES_AHEAD, FramePrefetcher, background_worker, extract_frame
+from pld_slam.frame_extraction import FramePrefetcher, background_worker, extract_frame
 from pld_slam.frontend import StereoAgreement, StereoFeatures
 from pld_slam.geometry.se3 import inverse
 from pld_slam.kernels import compile_kernels
@@ -245,7 +245,8 @@ class System:
         start = time.perf_counter()
         timestamp = float(self.sequence.timestamps[index])
         extracted = self._frames.take(index)
-        self._frames.prefetch(range(index + 1, min(index + 1 + FRAMES_AHEAD, len(self.sequence))))
+        ahead = self.config.system.prefetch_frames
+        self._frames.prefetch(range(index + 1, min(index + 1 + ahead, len(self.sequence))))
         if extracted.error is not None:
             error = extracted.error
             if not self._started:

@@ -1,7 +1,9 @@
 """Dynamic labels against masks (precision, recall, outline margin) and their overlay images."""
 
 import numpy as np
+import pytest
 
+from pld_slam.config import DynamicConfig
 from pld_slam.eval.dynamic_labels import LabelCounts, label_counts
 from pld_slam.io.dynamic_overlays import DYNAMIC_BGR, STATIC_BGR, draw_dynamic_overlay
 from pld_slam.tracking.dynamic import DynamicLabels
@@ -14,10 +16,15 @@ def car_mask() -> np.ndarray:
     return mask
 
 
-def test_points_on_the_mask_or_its_outline_count_as_moving():
+MARGIN_PX = DynamicConfig().mask_margin_px
+
+
+@pytest.mark.parametrize(("margin_px", "outline"), [(MARGIN_PX, True), (0, False)])
+def test_points_on_the_mask_or_its_outline_count_as_moving(margin_px, outline):
+    """The outline is ``dynamic.mask_margin_px`` wide: 2 px by default, none at 0."""
     uv = np.array([[90.0, 60.0], [61.0, 41.0], [58.4, 60.0], [50.0, 60.0], [10.0, 10.0]])
-    on_points, _ = features_on_mask(uv, np.zeros((0, 4)), car_mask())
-    assert on_points.tolist() == [True, True, True, False, False]
+    on_points, _ = features_on_mask(uv, np.zeros((0, 4)), car_mask(), margin_px)
+    assert on_points.tolist() == [True, True, outline, False, False]
 
 
 def test_a_line_counts_as_moving_when_most_of_it_is_on_the_mask():
@@ -26,7 +33,7 @@ def test_a_line_counts_as_moving_when_most_of_it_is_on_the_mask():
         [30.0, 60.0, 100.0, 60.0],  # 3 of 5 samples inside (65, 82.5, 100)
         [10.0, 60.0, 70.0, 60.0],  # only the end touches
     ])
-    _, on_lines = features_on_mask(np.zeros((0, 2)), segments, car_mask())
+    _, on_lines = features_on_mask(np.zeros((0, 2)), segments, car_mask(), MARGIN_PX)
     assert on_lines.tolist() == [True, True, False]
 
 

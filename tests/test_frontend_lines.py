@@ -2,6 +2,7 @@
 stereo line matching and endpoint disparities, on rendered planes of known pose and on a
 real KITTI pair."""
 
+import dataclasses
 import typing
 
 import cv2
@@ -169,7 +170,7 @@ def test_refined_segments_move_onto_a_sub_pixel_edge_and_keep_their_extent():
     normal = np.array([-np.sin(angle), np.cos(angle)])
     on_edge = point + np.outer([-60.0, 60.0], direction)
     off_edge = on_edge + np.outer([1.2, -0.6], normal)  # 1.2 and 0.6 px off, on either side: turned too
-    refined = refined_to_edges(image, off_edge[None])[0]
+    refined = refined_to_edges(image, off_edge[None], LinesConfig())[0]
     assert distance_to_line(off_edge, point, angle).max() > 1.0
     assert distance_to_line(refined, point, angle).max() < 0.05
     own_direction = (off_edge[1] - off_edge[0]) / np.linalg.norm(off_edge[1] - off_edge[0])
@@ -179,8 +180,24 @@ def test_refined_segments_move_onto_a_sub_pixel_edge_and_keep_their_extent():
 def test_segments_without_an_edge_under_them_stay_as_detected():
     image = np.full((240, 320), 128, dtype=np.uint8)
     segments = np.array([[[50.0, 20.0], [60.0, 200.0]], [[200.0, 30.0], [250.0, 220.0]]])
-    np.testing.assert_array_equal(refined_to_edges(image, segments), segments)
-    assert refined_to_edges(image, np.zeros((0, 2, 2))).shape == (0, 2, 2)
+    np.testing.assert_array_equal(refined_to_edges(image, segments, LinesConfig()), segments)
+    assert refined_to_edges(image, np.zeros((0, 2, 2)), LinesConfig()).shape == (0, 2, 2)
+
+
+@pytest.mark.parametrize(("reach", "found"), [(None, False), (7, True)])
+def test_the_edge_is_searched_as_far_as_configured(reach, found):
+    """``lines.edge_search_px``: a segment 5 px off its edge stays where it was detected with the
+    default 3 px reach, and moves onto the edge with a 7 px one."""
+    point, angle = np.array([160.3, 120.0]), np.deg2rad(70.0)
+    image = step_edge_image(point, angle)
+    direction, normal = np.array([np.cos(angle), np.sin(angle)]), np.array([-np.sin(angle), np.cos(angle)])
+    off_edge = point + np.outer([-60.0, 60.0], direction) + 5.0 * normal
+    config = LinesConfig() if reach is None else dataclasses.replace(LinesConfig(), edge_search_px=reach)
+    refined = refined_to_edges(image, off_edge[None], config)[0]
+    if found:
+        assert distance_to_line(refined, point, angle).max() < 0.05
+    else:
+        np.testing.assert_array_equal(refined, off_edge)
 
 
 # --- the three detectors on turned squares -----------------------------------------------

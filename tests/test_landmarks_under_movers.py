@@ -2,15 +2,17 @@
 under a mover at their depth, and missed in view unless a nearer mover hides them."""
 
 import numpy as np
+import pytest
 
-from pld_slam.config import load_config
+from pld_slam.config import MappingConfig, load_config
 from pld_slam.frontend import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
-from pld_slam.matching.projection import _NEAREST_SCALE, LandmarkSnapshot
-from pld_slam.tracking.local_map import MOVER_DEPTH_TOLERANCE, missed_in_image, missed_near_movers
+from pld_slam.matching.projection import LandmarkSnapshot
+from pld_slam.tracking.local_map import missed_in_image, missed_near_movers
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 RADIUS_PX = 64.0
+DEPTH_TOLERANCE = MappingConfig().mover_depth_tolerance
 
 
 def snapshot(points_w: np.ndarray) -> LandmarkSnapshot:
@@ -29,9 +31,11 @@ def stereo_points(points_c: np.ndarray) -> StereoPoints:
                         disparity=disparity, u_right=uv[:, 0] - disparity, points_c=points_c)
 
 
-def judged(points_w: LandmarkSnapshot, found: np.ndarray, points: StereoPoints, dynamic: np.ndarray):
+def judged(points_w: LandmarkSnapshot, found: np.ndarray, points: StereoPoints, dynamic: np.ndarray,
+           depth_tolerance: float = DEPTH_TOLERANCE):
     """`missed_near_movers` for a camera at the world origin looking down +z."""
-    return missed_near_movers(missed_in_image(CAMERA, np.eye(4), points_w, found), points, dynamic, RADIUS_PX)
+    return missed_near_movers(missed_in_image(CAMERA, np.eye(4), points_w, found), points, dynamic, RADIUS_PX,
+                              depth_tolerance)
 
 
 def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mover():
@@ -56,13 +60,15 @@ def test_only_a_missed_landmark_with_a_mover_at_its_depth_nearby_lies_under_a_mo
     assert under.tolist() == [ids[0]]
 
 
-def test_the_depth_band_is_relative_to_the_landmark_depth():
+@pytest.mark.parametrize("tolerance", [DEPTH_TOLERANCE, 0.05])
+def test_the_depth_band_is_relative_to_the_landmark_depth(tolerance):
+    """The band is ``mapping.mover_depth_tolerance`` of the landmark's depth, whatever the key says."""
     landmark = np.array([[0.0, 0.0, 30.0]])
-    inside = 30.0 * (1.0 + 0.9 * MOVER_DEPTH_TOLERANCE)
-    outside = 30.0 * (1.0 + 1.1 * MOVER_DEPTH_TOLERANCE)
+    inside = 30.0 * (1.0 + 0.9 * tolerance)
+    outside = 30.0 * (1.0 + 1.1 * tolerance)
     for depth, expected in ((inside, [10]), (outside, [])):
         points = stereo_points(np.array([[0.3, 0.0, depth]]))
-        under = judged(snapshot(landmark), np.zeros(0, np.int64), points, np.array([True])).under_movers
+        under = judged(snapshot(landmark), np.zeros(0, np.int64), points, np.array([True]), tolerance).under_movers
         assert under.tolist() == expected, depth
 
 
@@ -75,8 +81,10 @@ def test_a_landmark_beyond_its_search_range_is_judged_too():
         ids=np.array([10]), geometry=landmark, descriptors=np.zeros((1, 32), np.uint8),
         normals=np.array([[0.0, 0.0, 1.0]]), max_distance=np.array([40.0]),
     )
-    points_config = load_config().points
-    nearest_searched = _NEAREST_SCALE * 40.0 / points_config.scale_factor ** (points_config.n_levels - 1)
+    config = load_config()
+    points_config = config.points
+    nearest_searched = (config.mapping.search_nearest_scale * 40.0
+                        / points_config.scale_factor ** (points_config.n_levels - 1))
     assert nearest_searched > 5.0  # the search of the local map skips it
     points = stereo_points(np.array([[0.2, 0.0, 5.2]]))
     under = judged(seen_from_far, np.zeros(0, np.int64), points, np.array([True])).under_movers

@@ -7,6 +7,8 @@ The frames here see random landmarks from three poses, with a few descriptor bit
 flipped, among random distractors.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -111,6 +113,19 @@ def test_points_matched_into_several_frames_at_once_match_as_in_each_frame_alone
         assert len(found.matches) >= 40
         assert np.all(found.matches.current < 60), "a distractor matched"
         np.testing.assert_array_equal(found.matches.previous, truth[found.matches.current])
+
+
+@pytest.mark.parametrize(("farthest_scale", "searched"), [(None, True), (1.0, False)])
+def test_points_are_searched_as_far_as_the_configured_share_of_their_range(points, farthest_scale, searched):
+    """``mapping.search_farthest_scale``: points seen at 1 / 0.9 of their farthest distance are searched
+    with the default 1.2, not at 1.0."""
+    snapshot, frames, _ = points
+    nearer_range = dataclasses.replace(snapshot, max_distance=0.9 * np.linalg.norm(snapshot.geometry, axis=1))
+    overrides = [] if farthest_scale is None else [f"mapping.search_farthest_scale={farthest_scale}"]
+    search = ProjectionSearch.of(load_config(overrides=overrides))
+    found = match_map_points(CAMERA, POSES[0], nearer_range, frames[0], search, CONFIG.mapping.max_point_distance,
+                             CONFIG.mapping.ratio)
+    assert found.visible.any() == searched and (len(found.matches) >= 40) == searched
 
 
 def test_lines_matched_into_several_frames_at_once_match_as_in_each_frame_alone(lines):

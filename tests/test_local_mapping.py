@@ -283,17 +283,26 @@ def test_a_left_image_only_observation_weighs_half_a_stereo_one():
     check_map_consistency(mapping.map)
 
 
-def test_the_observation_weight_is_judged_two_keyframes_after_creation_not_one():
-    mapping = local_mapping(config_with(min_observation_weight=4))
+@pytest.mark.parametrize("age", [None, 1, 3])
+def test_the_observation_weight_is_judged_two_keyframes_after_creation_not_one(age):
+    """``mapping.min_observation_age`` keyframes after creation (2 by default), not before."""
+    config = config_with(min_observation_weight=4, **({} if age is None else {"min_observation_age": age}))
+    mapping = local_mapping(config)
     mapping.insert_keyframe(keyframe_seeing(mapping, points=range(3)))
-    mapping.insert_keyframe(empty_keyframe(mapping))
-    assert mapping.map.points.n_alive == 3
+    for _ in range(config.mapping.min_observation_age - 1):
+        mapping.insert_keyframe(empty_keyframe(mapping))
+        assert mapping.map.points.n_alive == 3
     mapping.insert_keyframe(empty_keyframe(mapping))
     assert mapping.map.points.n_alive == 0
 
 
-def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
-    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=0), points=range(2))
+@pytest.mark.parametrize(("recent_keyframes", "culled"), [(None, []), (5, [0])])
+def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation(recent_keyframes, culled):
+    """... after ``mapping.recent_landmark_keyframes`` (3 by default): at 5, three keyframes later the
+    landmark is still recent, and culled as rarely found."""
+    more = {} if recent_keyframes is None else {"recent_landmark_keyframes": recent_keyframes}
+    mapping = mapping_with_old_landmarks(config_with(min_observation_weight=1, max_missed_frames=0, **more),
+                                         points=range(2))
     nothing = np.zeros(0, dtype=np.int64)
     for _ in range(10):  # visible, never found: would be culled if still recent
         mapping.record_tracking(
@@ -301,7 +310,8 @@ def test_a_landmark_stops_being_recent_three_keyframes_after_its_creation():
             dynamic=(nothing, nothing),
         )
     insertion = mapping.insert_keyframe(empty_keyframe(mapping))
-    assert insertion.culled_landmarks == 0 and mapping.map.points.alive.tolist() == [True, True]
+    assert insertion.culled_landmarks == len(culled)
+    assert np.flatnonzero(~mapping.map.points.alive[:2]).tolist() == culled
 
 
 def test_a_landmark_seen_moving_in_two_frames_since_it_was_last_found_static_is_removed():

@@ -122,10 +122,10 @@ def street_map(places: list[int]) -> Map:
     return world_map
 
 
-def bow_detections(places: list[int]) -> list[list]:
+def bow_detections(places: list[int], config: LoopConfig = CONFIG) -> list[list]:
     """Every keyframe's BoW detections, keyframes looked up in order."""
     world_map = street_map(places)
-    detector = BowDetector(world_map, street_vocabulary(max(places) + 2), CONFIG)
+    detector = BowDetector(world_map, street_vocabulary(max(places) + 2), config)
     return [detector.detect(world_map.keyframes[k]) for k in range(len(places))]
 
 
@@ -138,6 +138,17 @@ def test_bow_finds_a_revisit_once_it_is_group_consistent():
     assert [found[0].consistency for found in revisit] == [0, 1, 2, 3]
     assert revisit[-1][0].consistent and not revisit[-2][0].consistent
     assert all(d.score >= d.bar for found in revisit for d in found)
+
+
+@pytest.mark.parametrize("kept", ["bow_common_words_ratio", "bow_retain_ratio"])
+def test_bow_keeps_the_candidates_both_configured_shares_keep(kept):
+    """``loop.bow_common_words_ratio`` and ``loop.bow_retain_ratio``: with either at 0, the other alone
+    keeps only the revisited place; with both at 0 its neighbours along the street are candidates too."""
+    places = [*range(30), 3]
+    one = dataclasses.replace(CONFIG, **{kept: 0.0})
+    both = dataclasses.replace(one, bow_common_words_ratio=0.0, bow_retain_ratio=0.0)
+    assert [d.candidate for d in bow_detections(places, one)[30]] == [3]
+    assert [d.candidate for d in bow_detections(places, both)[30]] == [3, 2, 1]
 
 
 def test_bow_rejects_a_single_aliased_keyframe():
@@ -173,6 +184,10 @@ def test_drift_gate_accepts_drift_sized_corrections_only():
     assert plausible_drift(correction(2.0, 3.0), path=50.0, config=CONFIG)  # 4 % of the path
     assert not plausible_drift(correction(23.0, 3.0), path=25.0, config=CONFIG)  # an aliased facade
     assert not plausible_drift(correction(1.0, 61.0), path=500.0, config=CONFIG)
+    # 3 % of 10 m plus ``loop.drift_allowance_m``: 1.3 m by default, 0.3 m without the allowance
+    assert plausible_drift(correction(1.2, 3.0), path=10.0, config=CONFIG)
+    no_allowance = dataclasses.replace(CONFIG, drift_allowance_m=0.0)
+    assert not plausible_drift(correction(1.2, 3.0), path=10.0, config=no_allowance)
 
 
 def test_a_loop_joins_keyframes_at_the_same_place_only():
@@ -233,3 +248,13 @@ def test_the_covisible_keyframes_confirm_a_loop_only_where_they_see_the_candidat
     support = covisible_support(world_map, world_map.keyframes[CURRENT_SIDE[-1]], world_map.keyframes[0], check,
                                 CAMERA, COVISIBLE_CONFIG, PoseOnlyOptions(), needed=3)
     assert support == (3 if neighbours_see_the_place else 0)
+
+
+def test_only_the_configured_window_of_covisible_keyframes_is_tried():
+    """``loop.bow_covisible_window``: two covisible keyframes tried, two confirmations at most."""
+    world_map, check = revisit_map(True)
+    loop = dataclasses.replace(COVISIBLE_CONFIG.loop, bow_covisible_window=2)
+    config = dataclasses.replace(COVISIBLE_CONFIG, loop=loop)
+    support = covisible_support(world_map, world_map.keyframes[CURRENT_SIDE[-1]], world_map.keyframes[0], check,
+                                CAMERA, config, PoseOnlyOptions(), needed=3)
+    assert support == 2

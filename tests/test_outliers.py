@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import require
 
-from pld_slam.config import Config, FiltersConfig
+from pld_slam.config import Config, FiltersConfig, load_config
 from pld_slam.datasets import open_sequence
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.tracking.outliers import (
@@ -86,13 +86,28 @@ def test_grid_cval_deviation_is_the_flow_deviation_across_the_cell_direction():
 # --- point filter ------------------------------------------------------------------------
 
 
-def test_point_filter_removes_a_displaced_match_in_a_consistent_cell():
+def displaced_match_in_a_cell() -> tuple[np.ndarray, np.ndarray]:
+    """Seven matches of one cell moving together, but the fifth, 25 px off."""
     rng = np.random.default_rng(3)
     uv_prev = rng.uniform(0, 1, size=(7, 2)) * [60.0, 44.0] + [322.0, 194.0]
     uv_curr = uv_prev + [14.0, -3.0] + rng.normal(scale=0.5, size=(7, 2))
     uv_curr[4] += [-15.0, 20.0]
-    keep = point_grid_filter(uv_prev, uv_curr, FILTERS)
+    return uv_prev, uv_curr
+
+
+def test_point_filter_removes_a_displaced_match_in_a_consistent_cell():
+    keep = point_grid_filter(*displaced_match_in_a_cell(), FILTERS)
     np.testing.assert_array_equal(keep, np.arange(7) != 4)
+
+
+@pytest.mark.parametrize(
+    "key", ["point_grid_min_deviation_px=30.0", "point_grid_min_cell_matches=8"]
+)
+def test_point_filter_floors_are_the_configured_ones(key):
+    """The displaced match of the cell above (25 px off) stays under a 30 px floor, or in a cell of
+    fewer than 8 matches, which is not judged."""
+    filters = load_config(overrides=[f"filters.{key}"]).filters
+    assert point_grid_filter(*displaced_match_in_a_cell(), filters).all()
 
 
 @pytest.mark.parametrize(
@@ -150,8 +165,8 @@ def test_angle_change_is_modulo_pi_and_shift_is_the_midpoint_distance():
     np.testing.assert_allclose(midpoint_shifts(prev, curr)[0], 5.0)
 
 
-@pytest.mark.parametrize("planted", ["rotated", "shifted"])
-def test_line_filter_removes_a_planted_mismatch_in_an_llg(planted):
+def planted_line_mismatch(planted: str) -> tuple[np.ndarray, np.ndarray]:
+    """Two LLGs moving together, but the third line turned by 20 deg ("rotated") or moved 54 px more ("shifted")."""
     rng = np.random.default_rng(6)
     prev = np.vstack([cluster((300, 150), 6, rng), cluster((800, 220), 5, rng)])
     curr = moved_segments(prev, 0.5, 1.0, (10.0, 2.0))
@@ -159,8 +174,21 @@ def test_line_filter_removes_a_planted_mismatch_in_an_llg(planted):
         curr[2] = turned_about_midpoint(curr[2], 20.0)
     else:
         curr[2] += [45.0, 30.0, 45.0, 30.0]
-    keep = line_llg_filter(prev, curr, FILTERS)
+    return prev, curr
+
+
+@pytest.mark.parametrize("planted", ["rotated", "shifted"])
+def test_line_filter_removes_a_planted_mismatch_in_an_llg(planted):
+    keep = line_llg_filter(*planted_line_mismatch(planted), FILTERS)
     np.testing.assert_array_equal(keep, np.arange(11) != 2)
+
+
+@pytest.mark.parametrize(("planted", "key"), [("rotated", "line_llg_min_angle_change_deg=25.0"),
+                                              ("shifted", "line_llg_min_midpoint_shift_px=80.0")])
+def test_line_filter_floors_are_the_configured_ones(planted, key):
+    """The planted mismatch above (turned 20 deg, or moved about 64 px) stays under a floor set above it."""
+    filters = load_config(overrides=[f"filters.{key}"]).filters
+    assert line_llg_filter(*planted_line_mismatch(planted), filters).all()
 
 
 def test_line_filter_judges_a_lone_line_by_the_image_wide_means():

@@ -7,6 +7,7 @@ import pytest
 from finite_differences import CAMERA, random_points_in_view, random_pose
 from scipy.optimize import least_squares
 
+from pld_slam.config import load_config
 from pld_slam.geometry.se3 import inverse, se3_exp, so3_log, transform_points
 from pld_slam.optim.line_reprojection import detected_line_directions
 from pld_slam.optim.observations import LineObservations, PointObservations, WhitenedRows
@@ -190,6 +191,19 @@ def test_noisy_points_recover_the_pose(seed):
     assert np.mean(result.inliers.points) > 0.85
 
 
+def test_the_solve_stops_at_the_configured_cost_tolerance():
+    """``tracking.pose_cost_tolerance`` (`PoseOnlyOptions.of`): a looser one stops the solve sooner, a
+    tighter one later."""
+    rng = np.random.default_rng(0)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 200, noise_px=1.0)
+    nfev = {}
+    for tolerance in ("1.0e-1", None, "1.0e-10"):
+        config = load_config(overrides=[] if tolerance is None else [f"tracking.pose_cost_tolerance={tolerance}"])
+        nfev[tolerance] = optimize_pose(CAMERA, perturbed(T_true), points, options=PoseOnlyOptions.of(config)).nfev
+    assert nfev["1.0e-1"] < nfev[None] < nfev["1.0e-10"]
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_noisy_points_and_lines_recover_the_pose(seed):
     rng = np.random.default_rng(seed)
@@ -242,6 +256,29 @@ def test_rejection_rounds_flag_twenty_percent_gross_outliers(seed):
     assert not np.any(result.inliers.lines[line_outliers])
     assert np.mean(np.delete(result.inliers.points, point_outliers)) > 0.85
     assert np.mean(np.delete(result.inliers.lines, line_outliers)) > 0.85
+
+
+def test_the_rounds_and_evaluations_are_the_configured_ones():
+    """``tracking.pose_rounds``, ``tracking.pose_robust_rounds`` and ``tracking.pose_max_nfev`` reach the solve
+    (`PoseOnlyOptions.of`): 20 % gross outliers take the default four rounds, one when asked; a plain first
+    round ends elsewhere; two evaluations are too few to converge."""
+    rng = np.random.default_rng(0)
+    T_true = random_pose(rng)
+    points = observe_points(rng, T_true, 150, 1.0)
+    outliers = rng.permutation(150)[:30]
+    shifted_px = points.stereo_px.copy()
+    shifted_px[outliers] += rng.choice([-1.0, 1.0], (30, 3)) * rng.uniform(15.0, 60.0, (30, 3))
+    points = dataclasses.replace(points, stereo_px=shifted_px)
+
+    def solved(*overrides: str):
+        options = PoseOnlyOptions.of(load_config(overrides=[f"tracking.{override}" for override in overrides]))
+        return optimize_pose_rejecting_outliers(CAMERA, perturbed(T_true), points, options=options)
+
+    default = solved()
+    assert default.success and default.rounds == 4
+    assert solved("pose_rounds=1").rounds == 1
+    assert not np.array_equal(solved("pose_robust_rounds=0").T_c_w, default.T_c_w)
+    assert not solved("pose_max_nfev=2").success
 
 
 def test_rounds_skipped_at_a_fixed_point_do_not_change_the_result():

@@ -3,19 +3,21 @@
 import numpy as np
 import pytest
 
+from pld_slam.config import load_config
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.matching.projection import LandmarkSnapshot
 from pld_slam.tracking.local_map import missed_in_image
 from pld_slam.tracking.see_through import (
-    DEPTH_TOLERANCE,
-    HALF_WINDOW,
-    MARGIN_PX,
-    MATCH_RATIO,
-    SEARCH_REACH,
+    SeeThroughOptions,
     landmarks_found_at_another_depth,
     landmarks_seen_through,
     shows_farther_surface,
 )
+
+OPTIONS = SeeThroughOptions.of(load_config().mapping)
+HALF_WINDOW, SEARCH_REACH, MARGIN_PX, MATCH_RATIO = (OPTIONS.half_window, OPTIONS.reach, OPTIONS.margin_px,
+                                                     OPTIONS.match_ratio)
+DEPTH_TOLERANCE = OPTIONS.depth_tolerance
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 WALL_DEPTH = 20.0
@@ -82,19 +84,22 @@ def test_only_a_missed_landmark_in_front_of_the_surface_the_pair_shows_is_seen_t
     ])
     points = snapshot(landmarks)
     seen = landmarks_seen_through(CAMERA, missed_in_image(CAMERA, np.eye(4), points, points.ids[[5]]),
-                                  *as_images(left, right))
+                                  *as_images(left, right), OPTIONS)
     assert seen.tolist() == [points.ids[0]]
 
 
-@pytest.mark.parametrize("share", [0.5 * DEPTH_TOLERANCE, 2.0 * DEPTH_TOLERANCE])
-def test_the_surface_seen_must_lie_farther_than_the_depth_tolerance(share):
+@pytest.mark.parametrize("tolerance", [DEPTH_TOLERANCE, 0.3])
+@pytest.mark.parametrize("share", [0.5, 2.0])
+def test_the_surface_seen_must_lie_farther_than_the_depth_tolerance(share, tolerance):
+    """``mapping.see_through_depth_tolerance`` decides, at its default and at another value."""
     left, right = pair_with_wall()
-    # A landmark whose disparity exceeds the wall's by `share` of it plus the margin.
-    disparity = CAMERA.bf / WALL_DEPTH * (1.0 + share) + MARGIN_PX
+    options = SeeThroughOptions.of(load_config(overrides=[f"mapping.see_through_depth_tolerance={tolerance}"]).mapping)
+    # A landmark whose disparity exceeds the wall's by `share` of the tolerance plus the margin.
+    disparity = CAMERA.bf / WALL_DEPTH * (1.0 + share * tolerance) + MARGIN_PX
     points = snapshot(np.array([at_pixel(320, 240, CAMERA.bf / disparity)]))
     seen = landmarks_seen_through(CAMERA, missed_in_image(CAMERA, np.eye(4), points, np.zeros(0, np.int64)),
-                                  *as_images(left, right))
-    assert len(seen) == (share > DEPTH_TOLERANCE)
+                                  *as_images(left, right), options)
+    assert len(seen) == (share > 1.0)
 
 
 def reference_shows_farther_surface(left, right, u, v, predicted):
@@ -127,7 +132,7 @@ def test_the_search_decides_as_the_best_disparity_over_every_shift_would():
     u = rng.integers(60, CAMERA.width - HALF_WINDOW, n)
     v = rng.integers(HALF_WINDOW, CAMERA.height - HALF_WINDOW, n)
     predicted = np.minimum(CAMERA.bf / rng.uniform(3.0, 40.0, n), u - HALF_WINDOW - 2.0)
-    shown = shows_farther_surface(left, right, u, v, predicted)
+    shown = shows_farther_surface(left, right, u, v, predicted, OPTIONS)
     assert shown.tolist() == reference_shows_farther_surface(left, right, u, v, predicted).tolist()
     assert 20 < np.count_nonzero(shown) < n - 20  # both answers are exercised
 
@@ -144,7 +149,8 @@ def test_a_farther_match_counts_only_when_it_matches_clearly(copy_contrast, show
     window = left[v - h : v + h + 1, u - h : u + h + 1]
     right[v - h : v + h + 1, u - 10 - h : u - 10 + h + 1] = window.mean() + copy_contrast * (window - window.mean())
     left, right = as_images(left, right)
-    assert shows_farther_surface(left, right, np.array([u]), np.array([v]), np.array([20.0])).tolist() == [shown]
+    found = shows_farther_surface(left, right, np.array([u]), np.array([v]), np.array([20.0]), OPTIONS)
+    assert found.tolist() == [shown]
 
 
 @pytest.mark.parametrize(("nearer_copy", "shown"), [(False, True), (True, False)])
@@ -160,7 +166,8 @@ def test_a_farther_match_does_not_count_when_a_nearer_shift_matches_better(neare
     if nearer_copy:
         right[v - h : v + h + 1, u - 24 - h : u - 24 + h + 1] = window
     left, right = as_images(left, right)
-    assert shows_farther_surface(left, right, np.array([u]), np.array([v]), np.array([20.0])).tolist() == [shown]
+    found = shows_farther_surface(left, right, np.array([u]), np.array([v]), np.array([20.0]), OPTIONS)
+    assert found.tolist() == [shown]
 
 
 def test_a_landmark_found_where_the_pair_shows_another_depth_nearer_or_farther_is_flagged():
@@ -178,7 +185,7 @@ def test_a_landmark_found_where_the_pair_shows_another_depth_nearer_or_farther_i
     ])
     ids = np.arange(20, 20 + len(found))
     p_c = np.array([at_pixel(u, v, depth) for u, v, depth in found])
-    flagged = landmarks_found_at_another_depth(CAMERA, ids, found[:, :2], p_c, *as_images(left, right))
+    flagged = landmarks_found_at_another_depth(CAMERA, ids, found[:, :2], p_c, *as_images(left, right), OPTIONS)
     assert flagged.tolist() == [ids[1], ids[2]]
 
 
@@ -191,5 +198,5 @@ def test_another_depth_must_differ_by_more_than_the_depth_tolerance_on_either_si
     disparity = wall * (1.0 + share) + MARGIN_PX if side > 0 else (wall - MARGIN_PX) / (1.0 + share)
     p_c = at_pixel(320, 240, CAMERA.bf / disparity)[None]
     flagged = landmarks_found_at_another_depth(CAMERA, np.array([7]), np.array([[320.0, 240.0]]), p_c,
-                                               *as_images(left, right))
+                                               *as_images(left, right), OPTIONS)
     assert len(flagged) == (share > DEPTH_TOLERANCE)

@@ -103,6 +103,16 @@ def test_the_offset_of_right_images_shifted_by_a_known_amount_is_found(street, s
         assert estimate.offset_px == pytest.approx(shift_px, abs=0.15)
 
 
+@pytest.mark.parametrize("key", ["calibration.gating_rounds=1", "calibration.pair_pose_rounds=4"])
+def test_the_gating_rounds_and_the_pair_poses_are_the_configured_ones(street, key):
+    """One round stops at the first Newton step from 0, which the default's further rounds move;
+    pair poses of four solves pick other inliers than the default's two: another estimate."""
+    shifted = dataclasses.replace(street, rectifier=right_shifted_left(SHIFT_PX))
+    default = estimate_disparity_offset(shifted, load_config())
+    changed = estimate_disparity_offset(shifted, load_config(overrides=[key]))
+    assert changed.estimate_px != default.estimate_px
+
+
 def test_the_posterior_mean_shrinks_an_estimate_by_its_uncertainty_against_the_prior():
     assert posterior_mean(-0.2, 0.05, 0.0) == -0.2  # no prior: as estimated
     assert posterior_mean(-0.2, 0.15, 0.15) == pytest.approx(-0.1)  # as uncertain as the prior: halfway

@@ -23,7 +23,6 @@ from pld_slam.matching.frames import FrameMatches
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
 from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.moving_masks import OUTLINE_MARGIN_PX
 from pld_slam.tracking.reference import DynamicIndices, FeatureMatches, ReferenceFrame, can_be_reference
 from pld_slam.tracking.tracker import Tracker, TrackingState, TrackingStatus
 
@@ -304,14 +303,19 @@ def test_a_frame_without_features_is_not_tracked_by_the_reference(sequence, feat
     assert guided.counts.point_matches == 0
 
 
-def test_with_a_moving_mask_the_features_on_it_are_the_dynamic_ones_and_stay_out_of_the_solve(sequence, features):
-    tracker = Tracker(sequence.camera, load_config())
+@pytest.mark.parametrize("margin", [None, 20])
+def test_with_a_moving_mask_the_features_on_it_are_the_dynamic_ones_and_stay_out_of_the_solve(
+    sequence, features, margin
+):
+    config = load_config(overrides=() if margin is None else (f"dynamic.mask_margin_px={margin}",))
+    tracker = Tracker(sequence.camera, config)
     for frame in features[:3]:
         tracker.track(frame)
     mask = np.zeros((sequence.camera.height, sequence.camera.width), dtype=bool)
     mask[:, : sequence.camera.width // 3] = True  # the left third "moves"
     guided = tracker.track_reference(features[3], mask)
-    on_mask = np.rint(guided.labels.point_uv[:, 0]) < sequence.camera.width // 3 + OUTLINE_MARGIN_PX  # outline too
+    outline = config.dynamic.mask_margin_px
+    on_mask = np.rint(guided.labels.point_uv[:, 0]) < sequence.camera.width // 3 + outline
     assert on_mask.any() and not on_mask.all()
     np.testing.assert_array_equal(guided.labels.point_dynamic, on_mask)
     assert guided.counts.dynamic_points == np.count_nonzero(on_mask)

@@ -104,8 +104,7 @@ def test_relocalisation_tries_the_own_local_map_then_similar_keyframes_and_leave
         empty = LocalMap(own.keyframes, LandmarkSnapshot.of(world_map.points, none),
                          LandmarkSnapshot.of(world_map.lines, none))
         first_local_map = gather_local_map(world_map, first, config.mapping.tracking_keyframes)
-        options = PoseOnlyOptions(use_line_vertical=config.lines.vertical_error,
-                                  use_line_horizontal=config.lines.horizontal_error)
+        options = PoseOnlyOptions.of(config)
         static = np.zeros(len(features.keypoints), dtype=bool), np.zeros(len(features.lines), dtype=bool)
         proposal = track_from_scratch(street.camera, [empty, first_local_map], features, *static, config, options)
         nothing = track_from_scratch(street.camera, [empty], features, *static, config, options)

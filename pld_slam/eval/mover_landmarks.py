@@ -12,8 +12,8 @@ Two groups are counted apart. Landmarks made while the object rested are the iss
 subject: they were right when made and must leave once it moves. Landmarks made on it
 after it started come from features the detectors missed; local mapping judges a new
 landmark over the keyframes after its creation (`pld_slam.mapping.local_mapping`, step 2),
-so only those at least `JUDGEMENT_AGE` keyframes old at the count are counted, the
-newest not being judged yet.
+so only those at least ``mapping.min_observation_age`` keyframes old at the count are
+counted, the newest not being judged yet.
 
 Of the landmarks made at rest and alive at the count, those that no keyframe since the
 object started had in view (in front of the camera, projecting inside its image) are
@@ -28,9 +28,9 @@ from functools import partial
 
 import numpy as np
 
+from pld_slam.config import MappingConfig
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
-from pld_slam.mapping.local_mapping import JUDGEMENT_AGE
 from pld_slam.mapping.map import Map
 from pld_slam.synth.scenarios import Scenario
 from pld_slam.tracking.local_map import points_in_view
@@ -95,12 +95,14 @@ class MoverLandmarks:
 
     Call `on_keyframe` after each keyframe's insertion; `rows` then lists, per mover that
     started moving, its landmarks made (points, lines) and, ``keyframes_after`` keyframes
-    from its start, those made at rest and those made while moving (judged) still alive
+    from its start, those made at rest and those made while moving (judged: at least
+    ``judgement_age`` keyframes old, the run's ``mapping.min_observation_age``) still alive
     (None where the run ended first).
     """
 
     world: Scenario
     keyframes_after: int = 5
+    judgement_age: int = MappingConfig.min_observation_age
     made: tuple[dict[int, LandmarkOrigin], dict[int, LandmarkOrigin]] = field(
         init=False, default_factory=lambda: ({}, {})
     )
@@ -157,8 +159,8 @@ class MoverLandmarks:
     def alive_by_group(self, world_map: Map, mover: int, start: int) -> dict[str, tuple[int, int]]:
         """Points and lines of ``mover`` (which started at frame ``start``) alive now: those made
         at rest, of those the ones no keyframe since ``start`` had in view (`note_in_view`), and
-        those made while it moved that are at least `JUDGEMENT_AGE` keyframes old."""
-        judged = self.keyframes_seen - JUDGEMENT_AGE
+        those made while it moved that are at least ``judgement_age`` keyframes old."""
+        judged = self.keyframes_seen - self.judgement_age
         at_rest = partial(LandmarkOrigin.at_rest_on, mover=mover, start=start)
         return {
             "at rest": self.alive(world_map, at_rest),

@@ -118,7 +118,7 @@ def detect_image_lines(image: np.ndarray, config: LinesConfig) -> ImageLines:
     upright = segments[~near_horizontal(segments, config.min_angle_from_horizontal)]
     kept = longest_segments(upright, min_length_px(image, config), config.max_lines)
     if config.detector in PIXEL_ACCURATE_DETECTORS:
-        kept = refined_to_edges(image, kept)
+        kept = refined_to_edges(image, kept, config)
     return ImageLines(segments=kept, descriptors=lbd_descriptors(image, kept))
 
 
@@ -179,44 +179,35 @@ PIXEL_ACCURATE_DETECTORS = ("fld", "edlines")
 moved onto the edge (`refined_to_edges`); LSD's are sub-pixel already."""
 
 
-EDGE_SEARCH_PX = 3
-"""`refined_to_edges` looks for a segment's edge up to this far [px] on either side of it."""
-EDGE_SAMPLE_SPACING_PX = 3.0
-"""`refined_to_edges` samples the edge every this many pixels along a segment..."""
-MIN_EDGE_SAMPLES, MAX_EDGE_SAMPLES = 6, 32
-"""... at least and at most this many times."""
-MIN_EDGE_GRADIENT = 4.0
-"""A sample counts only where the grey-level gradient across the segment exceeds this [levels / px]."""
-EDGE_OUTLIER_PX = 1.0
-"""Samples farther than this [px] from their segment's median offset are left out of the fit."""
-
-
-def refined_to_edges(image: np.ndarray, segments: np.ndarray) -> np.ndarray:
+def refined_to_edges(image: np.ndarray, segments: np.ndarray, config: LinesConfig) -> np.ndarray:
     """Segments (M, 2, 2) [px] of a grey image (H, W) uint8 moved across their direction onto the
     sub-pixel maximum of the image gradient: the same segments, endpoints shifted sideways.
 
     FastLineDetector and EDLines fit their segments to edge pixels found at whole pixels
     of the scaled image, LSD to the gradient field, which places it to a fraction of a
-    pixel. Every `EDGE_SAMPLE_SPACING_PX` along a segment (`MIN_EDGE_SAMPLES` to
-    `MAX_EDGE_SAMPLES` times), the full image is sampled across it, ``+-EDGE_SEARCH_PX``;
-    the largest central difference, refined by a parabola through its neighbours, is the
-    edge there. Samples with a weak gradient, a maximum at the search's end, or more than
-    `EDGE_OUTLIER_PX` from the segment's median offset are dropped; the offset is then
-    fitted as a straight function of the position along the segment (least squares) and
-    each endpoint moved by it, at most ``EDGE_SEARCH_PX``. Segments with fewer than
-    ``MIN_EDGE_SAMPLES // 2`` usable samples stay as detected. The endpoints keep their
-    position along the line.
+    pixel. Every ``edge_sample_spacing_px`` (3 px) along a segment (``edge_min_samples`` to
+    ``edge_max_samples`` times, 6 to 32), the full image is sampled across it,
+    ``+-edge_search_px`` (3 px); the largest central difference, refined by a parabola
+    through its neighbours, is the edge there. Samples with a gradient not above
+    ``edge_min_gradient`` (4 levels / px), a maximum at the search's end, or more than
+    ``edge_outlier_px`` (1 px) from the segment's median offset are dropped; the offset is
+    then fitted as a straight function of the position along the segment (least squares)
+    and each endpoint moved by it, at most ``edge_search_px``. Segments with fewer than
+    ``edge_min_samples // 2`` usable samples stay as detected. The endpoints keep their
+    position along the line. (The keys are ``config``'s, section ``lines``.)
     """
     if len(segments) == 0:
         return segments
+    reach = config.edge_search_px
     start, delta = segments[:, 0], segments[:, 1] - segments[:, 0]
     normal = segment_normals(segments)
     samples = np.clip(
-        (segment_lengths(segments) / EDGE_SAMPLE_SPACING_PX).astype(np.int64), MIN_EDGE_SAMPLES, MAX_EDGE_SAMPLES
+        (segment_lengths(segments) / config.edge_sample_spacing_px).astype(np.int64), config.edge_min_samples,
+        config.edge_max_samples,
     )
     along = (np.arange(samples.max())[None, :] + 0.5) / samples[:, None]  # (M, K) fraction of the length
     in_segment = along < 1.0
-    across = np.arange(-EDGE_SEARCH_PX - 1, EDGE_SEARCH_PX + 2, dtype=np.float64)  # (T,) [px]
+    across = np.arange(-reach - 1, reach + 2, dtype=np.float64)  # (T,) [px]
     centres = start[:, None] + np.minimum(along, 1.0)[..., None] * delta[:, None]  # (M, K, 2)
     where = centres[:, :, None] + across[None, None, :, None] * normal[:, None, None]  # (M, K, T, 2)
     n_segments, n_samples, n_across, _ = where.shape
@@ -235,13 +226,13 @@ def refined_to_edges(image: np.ndarray, segments: np.ndarray) -> np.ndarray:
     before, top, after = (np.take_along_axis(gradient, (peak + k)[..., None], 2)[..., 0] for k in (-1, 0, 1))
     curvature = before - 2.0 * top + after
     vertex = np.where(curvature < 0, 0.5 * (before - after) / np.where(curvature < 0, curvature, -1.0), 0.0)
-    offset = peak - EDGE_SEARCH_PX + np.clip(vertex, -0.5, 0.5)  # (M, K) [px] along the normal
-    usable = in_segment & inside & (top > MIN_EDGE_GRADIENT)
+    offset = peak - reach + np.clip(vertex, -0.5, 0.5)  # (M, K) [px] along the normal
+    usable = in_segment & inside & (top > config.edge_min_gradient)
     usable_offsets = np.where(usable, offset, np.nan)
     usable_offsets[~usable.any(axis=1)] = 0.0  # no usable sample: no median needed, and no all-NaN warning
-    usable &= np.abs(offset - np.nanmedian(usable_offsets, axis=1, keepdims=True)) <= EDGE_OUTLIER_PX
-    shift = np.clip(_fitted_offsets(along, offset, usable), -EDGE_SEARCH_PX, EDGE_SEARCH_PX)  # (M, 2) at the endpoints
-    enough = usable.sum(axis=1) >= MIN_EDGE_SAMPLES // 2
+    usable &= np.abs(offset - np.nanmedian(usable_offsets, axis=1, keepdims=True)) <= config.edge_outlier_px
+    shift = np.clip(_fitted_offsets(along, offset, usable), -reach, reach)  # (M, 2) at the endpoints
+    enough = usable.sum(axis=1) >= config.edge_min_samples // 2
     return segments + np.where(enough[:, None, None], shift[..., None] * normal[:, None], 0.0)
 
 

@@ -10,11 +10,12 @@ selection follows ORB-SLAM2's ``KeyFrameDatabase::DetectLoopCandidates`` and
 2. Keyframes sharing words with it, except its covisible keyframes and the
    ``loop.exclude_recent_keyframes`` just before it (ORB-SLAM2 excludes only the
    covisible ones; we exclude the recent ones too, as GGS does, so that both detectors
-   are asked the same question). Kept: those with at least 80 % of the largest number of
-   shared words, and a score at least the bar.
-3. Each kept keyframe's group (itself and its 10 strongest covisible neighbours among the
-   kept ones) accumulates their scores; the best-scored keyframe of every group whose
-   accumulated score exceeds 75 % of the best group's is a candidate.
+   are asked the same question). Kept: those with at least ``loop.bow_common_words_ratio``
+   (80 %) of the largest number of shared words, and a score at least the bar.
+3. Each kept keyframe's group (itself and its ``loop.bow_group_neighbours`` (10) strongest
+   covisible neighbours among the kept ones) accumulates their scores; the best-scored
+   keyframe of every group whose accumulated score exceeds ``loop.bow_retain_ratio`` (75 %)
+   of the best group's is a candidate.
 4. Group consistency: a candidate's group (itself and its covisible neighbours) is
    consistent with a group of the previous keyframe's when they share a keyframe; a chain
    of ``loop.bow_consistency`` (3) such consecutive keyframes makes the candidate
@@ -43,13 +44,6 @@ from pld_slam.loop.detection import Detection
 from pld_slam.loop.vocabulary import BowVector, Vocabulary, bow_score
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
-
-COMMON_WORDS_RATIO = 0.8
-"""A candidate shares at least this share of the most words any keyframe shares (ORB-SLAM2)."""
-RETAIN_RATIO = 0.75
-"""A group is kept with an accumulated score above this share of the best (ORB-SLAM2)."""
-GROUP_NEIGHBOURS = 10
-"""Strongest covisible neighbours that join a keyframe's group for the accumulated score (ORB-SLAM2)."""
 
 
 class BowDatabase:
@@ -146,12 +140,13 @@ class BowDetector:
                     & (ids < keyframe.id - self._config.exclude_recent_keyframes))
         if not eligible.any():
             return [], []
-        kept = eligible & (shared >= COMMON_WORDS_RATIO * shared[eligible].max()) & (scores >= bar)
+        config = self._config
+        kept = eligible & (shared >= config.bow_common_words_ratio * shared[eligible].max()) & (scores >= bar)
         score_of = dict(zip(ids[kept].tolist(), scores[kept].tolist()))
         best: dict[int, float] = {}
         accumulated: dict[int, float] = {}
         for candidate, score in score_of.items():
-            group = [candidate, *(k for k in self._map.covisibility.neighbours(candidate, GROUP_NEIGHBOURS)
+            group = [candidate, *(k for k in self._map.covisibility.neighbours(candidate, config.bow_group_neighbours)
                                   if k in score_of)]
             leader = max(group, key=lambda k: (score_of[k], -k))
             total = sum(score_of[k] for k in group)
@@ -159,7 +154,7 @@ class BowDetector:
                 best[leader], accumulated[leader] = score_of[leader], total
         if not accumulated:
             return [], []
-        retain = RETAIN_RATIO * max(accumulated.values())
+        retain = config.bow_retain_ratio * max(accumulated.values())
         leaders = sorted((k for k in accumulated if accumulated[k] > retain), key=lambda k: (-best[k], k))
         return leaders, [best[k] for k in leaders]
 

@@ -161,9 +161,7 @@ class LoopClosing:
         self._camera = camera
         self._config = config
         self._fusion = FusionOptions.of(config)
-        self._pose_options = PoseOnlyOptions(
-            use_line_vertical=config.lines.vertical_error, use_line_horizontal=config.lines.horizontal_error
-        )
+        self._pose_options = PoseOnlyOptions.of(config)
         self._loop_edges: list[_LoopEdge] = []
         self.candidates: list[LoopCandidate] = []
         """Every candidate verified so far."""

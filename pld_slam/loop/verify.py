@@ -18,19 +18,19 @@ GGS) is accepted only when it passes every test here, cheapest first:
    Cost. Nearly every candidate fails here (a detector proposes 2-3 per keyframe), so
    the check must fail cheaply. PnP runs only on at least ``loop.min_inliers``
    descriptor matches, the inliers the check needs in the end: a RANSAC that cannot find
-   a pose runs all its iterations, and checks that find a pose have many more matches.
-   And the descriptor matching (brute force, no vocabulary with GGS) takes the
+   a pose runs all its ``tracking.pnp_iterations``, and checks that find a pose have many
+   more matches. And the descriptor matching (brute force, no vocabulary with GGS) takes the
    candidate's own landmarks rather than its neighbourhood's, several times fewer, with
    as many poses found; the neighbourhood still serves the tracking from the pose found
    (docs/decisions/0014-loop-verification.md).
 2. Drift gate (not in the paper): the correction the loop makes to the current keyframe
    (from its tracked pose to the pose found) must be one that drift could have caused
    since the candidate: at most ``loop.max_drift_ratio`` (3 %) of the keyframes' path
-   between them plus 1 m, and ``loop.max_drift_deg`` (20 deg). Our tracking drifts by
-   about 1 % of the path or less, so a true loop passes with a margin; an aliased match
-   (a repeated facade, matched with nearly all inliers) makes a correction of metres or
-   tens of degrees, and a looser gate let one through and bent the map
-   (docs/decisions/0014-loop-verification.md).
+   between them plus ``loop.drift_allowance_m`` (1 m), and ``loop.max_drift_deg`` (20 deg).
+   Our tracking drifts by about 1 % of the path or less, so a true loop passes with a
+   margin; an aliased match (a repeated facade, matched with nearly all inliers) makes a
+   correction of metres or tens of degrees, and a looser gate let one through and bent the
+   map (docs/decisions/0014-loop-verification.md).
 3. Same place (not in the paper): the current keyframe, where the check places it, and
    the candidate must see the scene from the same place: camera centres at most
    ``loop.max_distance_m`` (3 m) apart and optical axes within ``loop.max_view_angle_deg``
@@ -51,15 +51,16 @@ GGS) is accepted only when it passes every test here, cheapest first:
 
        lc_rat = ratio_inl * (1 - alpha * ||log(T_i T_j^-1)||)
 
-   with ``T_i`` the current keyframe's pose found by the check, ``T_j`` the candidate's,
-   the twist norm in metres and radians, and ``ratio_inl`` the check's inliers over its
-   matches. The paper's 50 % "initial" inlier ratio is not a parameter here: it is what a
-   true loop is expected to reach, and PnP's 300 RANSAC iterations cover it with 0.999
-   confidence. The paper's literal ``lc_rat`` would accept larger motions more readily;
-   we discount the inlier ratio instead (docs/decisions/0014-loop-verification.md). The
-   discount is small at alpha = 0.001 (2 % at 20 m): the test rejects above all a
-   candidate whose matches are mostly wrong, which is what perceptual aliasing produces (a repeated facade matched by
-   descriptor, fitting a pose with a few chance inliers).
+   with ``T_i`` the current keyframe's pose found by the check, ``T_j`` the candidate's, the
+   twist norm in metres and radians, and ``ratio_inl`` the check's inliers over its matches.
+   The paper's 50 % "initial" inlier ratio is not a parameter here: it is what a true loop
+   is expected to reach, and PnP's RANSAC (``tracking.pnp_iterations``, 300) covers it with
+   ``tracking.pnp_confidence`` (0.999). The paper's literal ``lc_rat`` would accept larger
+   motions more readily; we discount the inlier ratio instead
+   (docs/decisions/0014-loop-verification.md). The discount is small at alpha = 0.001 (2 %
+   at 20 m): the test rejects above all a candidate whose matches are mostly wrong, which is
+   what perceptual aliasing produces (a repeated facade matched by descriptor, fitting a
+   pose with a few chance inliers).
 """
 
 from dataclasses import dataclass
@@ -72,7 +73,7 @@ from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, motion_size, se3_log
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
-from pld_slam.matching.prior_free import pose_without_prior
+from pld_slam.matching.prior_free import PriorFreeOptions, pose_without_prior
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.tracking.local_map import (
     LocalMap,
@@ -117,8 +118,7 @@ def geometric_check(
     present = present_landmarks(world_map, keyframe)
     points = local_map_of(world_map, (candidate.id,), present).points
     found = pose_without_prior(camera, keyframe.features.keypoints, points.geometry, points.descriptors,
-                               config.tracking.max_point_distance, config.system.seed,
-                               min_matches=config.loop.min_inliers)
+                               PriorFreeOptions.of(config), min_matches=config.loop.min_inliers)
     if found is None:
         return None
     local_map = local_map_of(world_map, around(world_map, candidate), present)
@@ -135,35 +135,32 @@ def geometric_check(
     )
 
 
-COVISIBLE_WINDOW = 10
-"""Covisible keyframes of the current one tried by `covisible_support`, strongest first (ORB-SLAM3's
-``nNumCovisibles``)."""
-
-
 def covisible_support(
     world_map: Map, keyframe: KeyFrame, candidate: KeyFrame, check: GeometricCheck, camera: StereoCamera,
     config: Config, pose_options: PoseOnlyOptions, needed: int,
 ) -> int:
     """How many of the keyframe's covisible keyframes confirm the loop ``check`` found, up to ``needed``.
 
-    ORB-SLAM3's verification in the covisibility window (``LoopClosing::DetectCommonRegionsFromBoW``):
-    the pose the check found for ``keyframe`` is carried to each of its `COVISIBLE_WINDOW`
-    strongest covisible keyframes through their tracked relative pose, and the candidate's map
-    (the check's local map) is tracked into that keyframe from there; a keyframe confirms
-    the loop with at least half ``loop.min_inliers`` inliers (ORB-SLAM3 asks 30 projection
-    matches of each covisible keyframe against 50-80 of the current one). Only keyframes of
-    the current side count: ids after the candidate's plus ``loop.exclude_recent_keyframes``,
-    and not covisible with the candidate (after an earlier loop or a fusion a later keyframe
-    can be, and would confirm the candidate's map from its own side). The evidence ORB-SLAM2
-    waits for from the next keyframes (group consistency) is taken from keyframes already in
-    the map, with no delay. ORB-SLAM3 also carries a partial confirmation (fewer than
-    ``needed``) to the next keyframes; we do not, because group consistency already
-    carries a candidate that persists.
+    ORB-SLAM3's verification in the covisibility window
+    (``LoopClosing::DetectCommonRegionsFromBoW``): the pose the check found for ``keyframe``
+    is carried to each of its ``loop.bow_covisible_window`` (10, ORB-SLAM3's
+    ``nNumCovisibles``) strongest covisible keyframes through their tracked relative pose,
+    and the candidate's map (the check's local map) is tracked into that keyframe from
+    there; a keyframe confirms the loop with at least ``loop.bow_covisible_inlier_share``
+    (half) of ``loop.min_inliers`` inliers (ORB-SLAM3 asks 30 projection matches of each
+    covisible keyframe against 50-80 of the current one). Only keyframes of the current side
+    count: ids after the candidate's plus ``loop.exclude_recent_keyframes``, and not
+    covisible with the candidate (after an earlier loop or a fusion a later keyframe can be,
+    and would confirm the candidate's map from its own side). The evidence ORB-SLAM2 waits
+    for from the next keyframes (group consistency) is taken from keyframes already in the
+    map, with no delay. ORB-SLAM3 also carries a partial confirmation (fewer than
+    ``needed``) to the next keyframes; we do not, because group consistency already carries
+    a candidate that persists.
     """
     T_w_c = keyframe.T_w_c
     candidate_side = around(world_map, candidate)
     found = 0
-    for other in world_map.covisibility.neighbours(keyframe.id, COVISIBLE_WINDOW):
+    for other in world_map.covisibility.neighbours(keyframe.id, config.loop.bow_covisible_window):
         if found >= needed:
             break
         if other <= candidate.id + config.loop.exclude_recent_keyframes or other in candidate_side:
@@ -174,7 +171,7 @@ def covisible_support(
             camera, T_j_w, check.local_map, frame.features, frame.point_dynamic, frame.line_dynamic, config,
             pose_options, ReferenceMatches.empty(),
         )
-        found += tracking.tracked_landmarks >= config.loop.min_inliers / 2
+        found += tracking.tracked_landmarks >= config.loop.bow_covisible_inlier_share * config.loop.min_inliers
     return found
 
 
@@ -197,7 +194,7 @@ def path_length(world_map: Map, first: int, last: int) -> float:
 def plausible_drift(correction: np.ndarray, path: float, config: LoopConfig) -> bool:
     """Whether a keyframe's correction ``T_c_new_c_old`` (4, 4) could be drift over ``path`` [m] (module docstring)."""
     translation, angle = motion_size(correction)
-    return translation <= config.max_drift_ratio * path + 1.0 and angle <= config.max_drift_deg
+    return translation <= config.max_drift_ratio * path + config.drift_allowance_m and angle <= config.max_drift_deg
 
 
 def same_place(T_i_w: np.ndarray, T_j_w: np.ndarray, config: LoopConfig) -> bool:

@@ -7,10 +7,11 @@ a method below:
    their descriptors and viewing directions are refreshed; covisibility links updated.
 2. `_cull_recent_landmarks`: a landmark created in the last keyframes dies if tracking
    finds it in fewer than ``mapping.min_found_ratio`` (25 %) of the frames that should
-   see it, or if two keyframes after its creation its observations weigh less than
-   ``mapping.min_observation_weight`` (4), a stereo observation counting 2 and a
-   left-image-only one 1, as ORB-SLAM2 counts them: two stereo keyframes keep a landmark.
-   After three keyframes a landmark is no longer recent. A landmark of any age seen moving
+   see it, or if ``mapping.min_observation_age`` (2) keyframes after its creation its
+   observations weigh less than ``mapping.min_observation_weight`` (4), a stereo observation
+   counting 2 and a left-image-only one 1, as ORB-SLAM2 counts them: two stereo keyframes
+   keep a landmark. After ``mapping.recent_landmark_keyframes`` (3) keyframes a landmark is
+   no longer recent. A landmark of any age seen moving
    in ``mapping.dynamic_streak`` (2) frames since tracking last found it among the static
    features dies too (the paper: movers must not stay in the map): matched to a feature
    labelled dynamic, predicted where it is missed under a mover
@@ -41,7 +42,8 @@ a method below:
    at each keyframe leaves landmarks on movers; a feature the frame has no match for yet
    is mapped (docs/decisions/0004-landmark-creation.md).
 4. `_search_neighbours`: the keyframe's landmarks are projected into its covisible
-   keyframes (``mapping.local_ba_window`` strongest, and the 5 strongest of each) and
+   keyframes (``mapping.local_ba_window`` strongest, and the
+   ``mapping.fusion_second_neighbours`` (5) strongest of each) and
    theirs into it, and fused (`pld_slam.matching.fusion`: the matcher of tracking within
    the frame-to-frame descriptor bounds, and a chi-square test on the reprojection);
    a match to a feature without a landmark adds an observation, a match to a feature with
@@ -79,13 +81,6 @@ from pld_slam.mapping.map import Map
 from pld_slam.mapping.map_ba import BaReport
 from pld_slam.matching.fusion import FusionOptions, fuse
 from pld_slam.timing import StageClock
-
-_SECOND_NEIGHBOURS = 5
-"""Strongest neighbours of each covisible keyframe also searched (ORB-SLAM2: 5)."""
-_RECENT_KEYFRAMES = 3
-"""A landmark stays on the recent list for this many keyframes after its creation (ORB-SLAM2: 3)."""
-JUDGEMENT_AGE = 2
-"""Keyframes after its creation at which a new landmark's observations must weigh enough (step 2)."""
 
 
 @dataclass(frozen=True)
@@ -192,7 +187,7 @@ class LocalMapping:
             visible, found = kind.visible[recent], kind.found[recent]
             rarely_found = (visible > 0) & (found < config.min_found_ratio * visible)
             weights = self.map.observation_weights(kind, recent)
-            unconfirmed = (age >= JUDGEMENT_AGE) & (weights < config.min_observation_weight)
+            unconfirmed = (age >= config.min_observation_age) & (weights < config.min_observation_weight)
             doomed = recent[rarely_found | unconfirmed]
             moving = np.flatnonzero(kind.alive & (kind.dynamic_streak >= config.dynamic_streak))
             seen_moving.append(np.isin(getattr(keyframe, kind.IDS_FIELD), moving))
@@ -202,7 +197,7 @@ class LocalMapping:
                 doomed = np.union1d(doomed, missed)
             self.map.remove_landmarks(kind, doomed)
             removed += len(doomed)
-            keep = kind.alive[recent] & (age < _RECENT_KEYFRAMES)
+            keep = kind.alive[recent] & (age < config.recent_landmark_keyframes)
             setattr(self._recent, name, recent[keep])
         return removed, (seen_moving[0], seen_moving[1])
 
@@ -252,7 +247,7 @@ class LocalMapping:
         first = covisibility.neighbours(keyframe.id, limit=self._config.mapping.local_ba_window)
         chosen = list(first)
         for neighbour in first:
-            for second in covisibility.neighbours(neighbour, limit=_SECOND_NEIGHBOURS):
+            for second in covisibility.neighbours(neighbour, limit=self._config.mapping.fusion_second_neighbours):
                 if second != keyframe.id and second not in chosen:
                     chosen.append(second)
         return [self.map.keyframes[k] for k in chosen]

@@ -53,6 +53,8 @@ class MapBaOptions:
     line_sigma_px : a line endpoint's sigma (``tracking.line_sigma_px``).
     border_margin_px : endpoints this near the border take no horizontal term (``tracking.border_margin_px``).
     use_line_vertical, use_line_horizontal : the two line terms (``lines.vertical_error``, ``lines.horizontal_error``).
+    ftol, lsmr_max_iterations : where a solve stops, and the LSMR iterations of its steps, when it
+        refines (``mapping.ba_cost_tolerance``, ``mapping.ba_lsmr_iterations``).
     """
 
     scale_factor: float
@@ -61,11 +63,14 @@ class MapBaOptions:
     border_margin_px: float
     use_line_vertical: bool
     use_line_horizontal: bool
+    ftol: float
+    lsmr_max_iterations: int
 
     @classmethod
     def of(cls, config: Config) -> "MapBaOptions":
         return cls(config.points.scale_factor, config.points.disparity_sigma_px, config.tracking.line_sigma_px,
-                   config.tracking.border_margin_px, config.lines.vertical_error, config.lines.horizontal_error)
+                   config.tracking.border_margin_px, config.lines.vertical_error, config.lines.horizontal_error,
+                   config.mapping.ba_cost_tolerance, config.mapping.ba_lsmr_iterations)
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,7 @@ def adjust_keyframes(
     """Bundle-adjust keyframes ``free`` (ids) and their landmarks, write the result into ``world_map``
     (module docstring); None with nothing to adjust. ``max_nfev``: evaluations per solve;
     ``to_convergence``: solve with `pld_slam.optim.bundle_adjustment.TO_CONVERGENCE`
-    instead of refining as local BA does."""
+    instead of refining as local BA does (``options.ftol``, ``options.lsmr_max_iterations``)."""
     start = time.perf_counter()
     point_ids = _landmarks_of(world_map, world_map.points, free)
     line_ids = _landmarks_of(world_map, world_map.lines, free)
@@ -131,11 +136,12 @@ def adjust_keyframes(
         point_observations=_point_observations(world_map, points, keyframes, options),
         line_observations=_line_observations(world_map, lines, keyframes, camera, options),
     )
+    refine = dict(ftol=options.ftol, lsmr_max_iterations=options.lsmr_max_iterations)
     solve = BundleOptions(
         use_line_vertical=options.use_line_vertical,
         use_line_horizontal=options.use_line_horizontal,
         max_nfev=max_nfev,
-        **(TO_CONVERGENCE if to_convergence else {}),
+        **(TO_CONVERGENCE if to_convergence else refine),
     )
     result = bundle_adjust(camera, problem, solve)
     world_map.set_keyframe_poses(keyframes[~fixed], result.T_c_w[~fixed])

@@ -8,8 +8,9 @@ landmarks into all its neighbours at once (`pld_slam.matching.fusion`).
 
 Visibility. A landmark is searched for when it lies in front of the camera, projects
 inside the image, is seen within ``mapping.max_viewing_angle`` of its mean viewing
-direction and, for points, from a distance within its scale-invariance range (0.8 times
-its nearest to 1.2 times its farthest distance, as ORB-SLAM2). Such landmarks count as
+direction and, for points, from a distance within its scale-invariance range
+(``mapping.search_nearest_scale`` (0.8) times its nearest to ``mapping.search_farthest_scale``
+(1.2) times its farthest distance, as ORB-SLAM2). Such landmarks count as
 *visible* in this frame (the culling test of local mapping compares how often a landmark
 is found with how often it is visible).
 
@@ -52,9 +53,6 @@ from pld_slam.matching.frames import (
 )
 from pld_slam.matching.windows import pairs_within
 
-_NEAREST_SCALE, _FARTHEST_SCALE = 0.8, 1.2
-"""A point is searched between 0.8 x its nearest and 1.2 x its farthest distance (ORB-SLAM2)."""
-
 
 @dataclass(frozen=True)
 class ProjectionSearch:
@@ -64,6 +62,8 @@ class ProjectionSearch:
     ----------
     scale_factor, n_levels : the ORB pyramid (``points``): octaves predicted from distance.
     max_viewing_angle : [deg] largest angle from a landmark's mean viewing direction (``mapping``).
+    nearest_scale, farthest_scale : a point is searched between this times its nearest and this times
+        its farthest distance (``mapping.search_nearest_scale``, ``mapping.search_farthest_scale``).
     point_radius_px : window radius at octave 0 [px] (``mapping.point_search_radius_px``).
     line_radius_px : window radius around a line's predicted midpoint [px] (``mapping.line_search_radius_px``).
     line_max_angle_change : [deg], line_max_distance [bits], line_ratio : the line matching bounds
@@ -73,6 +73,8 @@ class ProjectionSearch:
     scale_factor: float
     n_levels: int
     max_viewing_angle: float
+    nearest_scale: float
+    farthest_scale: float
     point_radius_px: float
     line_radius_px: float
     line_max_angle_change: float
@@ -86,6 +88,8 @@ class ProjectionSearch:
             scale_factor=config.points.scale_factor,
             n_levels=config.points.n_levels,
             max_viewing_angle=config.mapping.max_viewing_angle,
+            nearest_scale=config.mapping.search_nearest_scale,
+            farthest_scale=config.mapping.search_farthest_scale,
             point_radius_px=config.mapping.point_search_radius_px,
             line_radius_px=config.mapping.line_search_radius_px,
             line_max_angle_change=config.tracking.line_max_angle_change,
@@ -163,8 +167,8 @@ def match_map_points_in_frames(
     visible = (
         in_front
         & camera.inside_image(stereo_px[:, :2])
-        & (distance >= _NEAREST_SCALE * nearest)
-        & (distance <= _FARTHEST_SCALE * max_distances)
+        & (distance >= search.nearest_scale * nearest)
+        & (distance <= search.farthest_scale * max_distances)
         & _within_viewing_angle(T_c_w, points.geometry, points.normals, search.max_viewing_angle).ravel()
     )
     octave = predicted_octaves(max_distances, distance, scale, levels)

@@ -73,6 +73,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 from scipy.sparse.linalg import LinearOperator
 
+from pld_slam.config import MappingConfig
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, se3_left_jacobian
 from pld_slam.jit import kernel
@@ -89,23 +90,14 @@ from pld_slam.optim.observations import (
 from pld_slam.optim.point_reprojection import stereo_row_errors
 from pld_slam.optim.robust import huber_without_curvature
 
-_LSMR_MAX_ITERATIONS = 10
-"""LSMR iterations allowed per step: the step is then an inexact Gauss-Newton step, which the
-trust region accepts or shrinks like any other. Uncapped, late steps spend their iterations
-on the last digits of a step the next evaluation corrects anyway (docs/decisions/0011-bundle-adjustment-solver.md)."""
-
-_FTOL = 1e-3
-"""Stop when a step lowers the cost by less than 0.1 %: BA refines a map that tracking
-already put close to its optimum, and each evaluation of a local window costs milliseconds;
-a tighter stop costs time for the same trajectory (docs/decisions/0011-bundle-adjustment-solver.md)."""
-
 _STOPPING_TOLERANCES = dict(xtol=1e-8, gtol=1e-8)
 """`least_squares`' step and gradient tolerances; its cost tolerance is `BundleOptions.ftol`."""
 
 TO_CONVERGENCE = dict(ftol=1e-6, lsmr_max_iterations=100)
 """`BundleOptions` fields that solve a problem to its optimum instead of refining it. The drift
-of a long trajectory is a problem's flattest direction, and steps of `_LSMR_MAX_ITERATIONS`
-stopped at a `_FTOL` gain leave it nearly untouched (docs/decisions/0011-bundle-adjustment-solver.md;
+of a long trajectory is a problem's flattest direction, and steps of
+``mapping.ba_lsmr_iterations`` (10) stopped at a ``mapping.ba_cost_tolerance`` (0.1 %) gain
+leave it nearly untouched (docs/decisions/0011-bundle-adjustment-solver.md;
 `benchmarks/ba_truth.py` solves this way)."""
 
 
@@ -181,13 +173,18 @@ class BundleOptions(ResidualOptions):
     ----------
     max_nfev : residual evaluations allowed per round.
     ftol, lsmr_max_iterations : `least_squares`' relative cost tolerance, and the LSMR iterations
-        of each step; the defaults (`_FTOL`, `_LSMR_MAX_ITERATIONS`) refine a map near its
-        optimum, as local BA does; `TO_CONVERGENCE` solves to the optimum.
+        allowed per step (each step is then an inexact Gauss-Newton step, which the trust region
+        accepts or shrinks like any other). The defaults, those of ``mapping.ba_cost_tolerance``
+        (0.1 %) and ``mapping.ba_lsmr_iterations`` (10), refine a map that tracking already put
+        near its optimum, as local and global BA do: a tighter stop, or uncapped steps spending
+        their iterations on the last digits of a step the next evaluation corrects anyway, cost
+        time for the same trajectory (docs/decisions/0011-bundle-adjustment-solver.md).
+        `TO_CONVERGENCE` solves to the optimum.
     """
 
     max_nfev: int = 10
-    ftol: float = _FTOL
-    lsmr_max_iterations: int = _LSMR_MAX_ITERATIONS
+    ftol: float = MappingConfig.ba_cost_tolerance
+    lsmr_max_iterations: int = MappingConfig.ba_lsmr_iterations
 
 
 @dataclass(frozen=True)

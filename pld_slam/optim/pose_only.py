@@ -31,16 +31,17 @@ is an outlier. A line passing its vertical test but failing the horizontal one k
 vertical term and loses only the horizontal one: the paper reserves that term for
 trustworthy endpoints, and a failed test says that the endpoint (often cut short by an
 occlusion), not the line, is off. `optimize_pose_rejecting_outliers` repeats the solve
-over rounds as ORB-SLAM2's ``PoseOptimization`` does (4 rounds, Huber in the first 3),
-except that each round starts from the previous estimate instead of the initial one, and
-that rounds which would repeat a fixed point are skipped.
+over rounds as ORB-SLAM2's ``PoseOptimization`` does (``tracking.pose_rounds`` (4) rounds,
+Huber in the first ``tracking.pose_robust_rounds`` (3)), except that each round starts
+from the previous estimate instead of the initial one, and that rounds which would repeat
+a fixed point are skipped.
 
 Speed. The tracker calls this once per frame, with a budget of ~15 ms for ~700 points
 and ~100 lines (`benchmarks/pose_solver_speed.py` measures it). Each round evaluates the
 rows of every observation once at its solution, for the inlier tests, and the next round
 starts from that evaluation instead of computing its first one again; residuals and
 Jacobian come from one evaluation per pose; the stopping tolerances are
-`_STOPPING_TOLERANCES`. The rows are evaluated by the numba kernel of
+`_STOPPING_TOLERANCES` and ``PoseOnlyOptions.ftol``. The rows are evaluated by the numba kernel of
 `pld_slam.optim.point_reprojection` (issue 8). Most of what remains is `least_squares`'s
 own work. The paper leaves the solver open; we take ``"trf"``'s exact step for robust
 rounds and ``"lm"`` for plain ones because, with OpenBLAS single-threaded, they are the
@@ -60,8 +61,8 @@ initial pose is rank deficient (smallest singular value below ``rank_tolerance``
 the largest: e.g. points all on one 3D line leave the rotation about it free). The rank
 test catches exact degeneracy only: lines parallel in space with only vertical errors
 leave the translation along them weak but, with noisy detections, not exactly free; the
-tracker judges such poses by its inlier counts. A solve that stops at ``max_nfev`` is a
-failure too.
+tracker judges such poses by its inlier counts. A solve that stops at ``max_nfev``
+(``tracking.pose_max_nfev``, 100) is a failure too.
 """
 
 import dataclasses
@@ -71,6 +72,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from pld_slam.config import Config, TrackingConfig
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import se3_exp, se3_left_jacobian
 from pld_slam.optim.observations import (
@@ -85,10 +87,8 @@ from pld_slam.optim.observations import (
 )
 from pld_slam.optim.robust import huber_without_curvature
 
-_STOPPING_TOLERANCES = dict(ftol=1e-5, xtol=1e-8, gtol=1e-8)
-"""`least_squares` stopping rule: scipy's defaults but ``ftol``, the relative cost decrease of
-the last step (which is still taken): 1e-5 moves no pose measurably against the default
-for fewer evaluations, 1e-4 moves them more (docs/decisions/0013-pose-only-solver.md)."""
+_STOPPING_TOLERANCES = dict(xtol=1e-8, gtol=1e-8)
+"""`least_squares` stopping rule: scipy's defaults but ``ftol`` (`PoseOnlyOptions.ftol`)."""
 _GRAM_RATIO_FLOOR = 1e-6
 """``s_min / s_max`` above which the Gram matrix gives it accurately (`_relative_smallest_singular_value`)."""
 
@@ -105,13 +105,28 @@ class PoseOnlyOptions(ResidualOptions):
     max_nfev : residual evaluations allowed per solve.
     min_residuals : fewest scalar residuals a solve needs.
     rank_tolerance : relative singular-value threshold of the rank test.
+    ftol : `least_squares`' relative cost decrease of the last step (which is still taken) at
+        which a solve stops; default ``tracking.pose_cost_tolerance``'s: 1e-5 moves no pose
+        measurably against scipy's 1e-8 for fewer evaluations, 1e-4 moves them more
+        (docs/decisions/0013-pose-only-solver.md).
     """
 
-    rounds: int = 4
-    robust_rounds: int = 3
-    max_nfev: int = 100
+    rounds: int = TrackingConfig.pose_rounds
+    robust_rounds: int = TrackingConfig.pose_robust_rounds
+    max_nfev: int = TrackingConfig.pose_max_nfev
     min_residuals: int = 12
     rank_tolerance: float = 1e-9
+    ftol: float = TrackingConfig.pose_cost_tolerance
+
+    @classmethod
+    def of(cls, config: Config) -> "PoseOnlyOptions":
+        """The solve ``config`` sets: the two line terms (``lines.vertical_error``,
+        ``lines.horizontal_error``), the rounds, evaluations and cost tolerance (``tracking.pose_rounds``,
+        ``tracking.pose_robust_rounds``, ``tracking.pose_max_nfev``, ``tracking.pose_cost_tolerance``)."""
+        tracking = config.tracking
+        return cls(use_line_vertical=config.lines.vertical_error, use_line_horizontal=config.lines.horizontal_error,
+                   rounds=tracking.pose_rounds, robust_rounds=tracking.pose_robust_rounds,
+                   max_nfev=tracking.pose_max_nfev, ftol=tracking.pose_cost_tolerance)
 
 
 class PoseOnlyStatus(enum.Enum):
@@ -302,6 +317,7 @@ def _solve_round(
         np.zeros(6),
         jac=problem.jacobian,
         max_nfev=options.max_nfev,
+        ftol=options.ftol,
         **_STOPPING_TOLERANCES,
         **_method_settings(robust, options.huber_scale),
     )

@@ -135,7 +135,8 @@ def run_into_locked_folder(
 ) -> dict:
     """`run_and_write` once ``out`` is locked, ``sequence`` read from its pair and scaled, and the recording
     (if asked for) open."""
-    mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence)
+    margin_px = run_config.config.dynamic.mask_margin_px
+    mask_scores = None if sequence.dynamic_mask_paths is None else MaskScores(sequence, margin_px)
     observers: list[FrameObserver] = [] if save_dynamic is None else [overlay_writer(save_dynamic, sequence)]
     observers += [] if mask_scores is None else [mask_scores]
     observers += [] if recording is None else [recording.frame]

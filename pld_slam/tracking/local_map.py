@@ -69,12 +69,6 @@ from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
 from pld_slam.tracking.static_world import StaticWorldOptions, static_world_solution
 
-MOVER_DEPTH_TOLERANCE = 0.2
-"""A mover's point within this share of a landmark's depth stands at its depth
-(`missed_near_movers`): a car 4.5 m long seen from 20 m spans about 10 % in depth and
-its stereo depth errs by about 5 % there, while what it hides lies farther behind
-(0.35 measured: docs/decisions/0019-local-map-tracking.md)."""
-
 
 @dataclass(frozen=True)
 class LocalMap:
@@ -282,7 +276,8 @@ def track_local_map(
     matched_to_movers = local_map.points.ids[_dynamic(point_matches.matches, dynamic_points).previous]
     missed = missed_in_image(camera, solution.T_c_w, local_map.points, map_points.landmarks[map_inliers])
     near_movers = missed_near_movers(
-        missed, features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width
+        missed, features.points, dynamic_points[: len(features.points)], config.filters.point_grid_cell_width,
+        config.mapping.mover_depth_tolerance,
     )
     return LocalMapTracking(
         solution=solution,
@@ -335,12 +330,13 @@ class MissedNearMovers:
 
 
 def missed_near_movers(
-    missed: MissedPoints, stereo_points: StereoPoints, dynamic: np.ndarray, radius_px: float
+    missed: MissedPoints, stereo_points: StereoPoints, dynamic: np.ndarray, radius_px: float, depth_tolerance: float
 ) -> MissedNearMovers:
     """Judge the ``missed`` point landmarks by the stereo points labelled dynamic (``dynamic``
     (S,) bool over ``stereo_points``) within ``radius_px`` of their projections: a landmark
-    lies under a mover when such a point lies at its depth, within `MOVER_DEPTH_TOLERANCE`
-    of it; it is hidden when such a point lies nearer than that. Those under movers count
+    lies under a mover when such a point lies at its depth, within ``depth_tolerance``
+    (``mapping.mover_depth_tolerance``, 0.2) of it; it is hidden when such a point lies nearer
+    than that. Those under movers count
     toward local mapping's dynamic streak, those not hidden toward its missed streak
     (``mapping.max_missed_frames``; `pld_slam.mapping.local_mapping`, step 2).
 
@@ -352,6 +348,10 @@ def missed_near_movers(
     The background a mover hides lies behind it, outside the depth band, and a static
     landmark found again ends the streak that local mapping removes landmarks by
     (`pld_slam.mapping.local_mapping`, step 2).
+
+    The depth tolerance: a car 4.5 m long seen from 20 m spans about 10 % in depth and its
+    stereo depth errs by about 5 % there, while what it hides lies farther behind (0.35
+    measured: docs/decisions/0019-local-map-tracking.md).
 
     The radius is one cell of the dynamic grid (``filters.point_grid_cell_width``, 64 px),
     the reach of the grid's own evidence (a hot cell marks points in its neighbours); half
@@ -381,9 +381,9 @@ def missed_near_movers(
                                     np.full(len(missed.uv), radius_px))
         mover_depth = stereo_points.points_c[movers[train], 2]
     depth = missed.p_c[query, 2]
-    at_its_depth = np.abs(mover_depth - depth) <= MOVER_DEPTH_TOLERANCE * depth
+    at_its_depth = np.abs(mover_depth - depth) <= depth_tolerance * depth
     in_view = missed.missed.copy()
-    in_view[query[mover_depth < (1.0 - MOVER_DEPTH_TOLERANCE) * depth]] = False
+    in_view[query[mover_depth < (1.0 - depth_tolerance) * depth]] = False
     return MissedNearMovers(under_movers=missed.ids[np.unique(query[at_its_depth])], in_view=missed.ids[in_view])
 
 

@@ -39,9 +39,9 @@ Point filter: decisions
   of the changes is near zero (the flow term averages out over the cell), so this
   rejects most correct matches. We compare each deviation's distance to the cell's
   median with alpha (1.5) times the cell's mean distance to the median, and reject only
-  when it also exceeds `POINT_MIN_DEVIATION_PX` (3 px), so that a noise-level deviation
+  when it also exceeds ``point_grid_min_deviation_px`` (3 px), so that a noise-level deviation
   never rejects (the floors measured: docs/decisions/0007-mismatch-filters.md).
-- Cells with fewer than `MIN_CELL_MATCHES` (3) matches are kept whole: with two the
+- Cells with fewer than ``point_grid_min_cell_matches`` (3) matches are kept whole: with two the
   median sits halfway and cannot tell which one is wrong (with alpha >= 1 the rule
   already rejects neither). The robust pose solver deals with what is left.
 
@@ -63,9 +63,9 @@ Line filter: decisions
   mean includes the judged line, which leaves a group of two unable to reject anything
   (``x > 2 (x + y) / 2`` never holds) and lets a gross mismatch raise its own
   threshold. A lone line is compared with the mean over all other matches of the image,
-  as the paper says. Floors: an angle change below `LINE_MIN_ANGLE_CHANGE` (5 deg,
+  as the paper says. Floors: an angle change below ``line_llg_min_angle_change_deg`` (5 deg,
   above the correct matches' spread) or a midpoint shift below
-  `LINE_MIN_MIDPOINT_SHIFT_PX` (20 px; LSD's endpoints slide along the line) never
+  ``line_llg_min_midpoint_shift_px`` (20 px; LSD's endpoints slide along the line) never
   rejects. The correct matches still lost mostly fail by their shift, in large LLGs
   whose lines lie at different depths and move differently
   (docs/decisions/0007-mismatch-filters.md).
@@ -77,18 +77,6 @@ from scipy.sparse.csgraph import connected_components
 
 from pld_slam.config import FiltersConfig
 from pld_slam.geometry.segments import segment_directions, segment_midpoints, unoriented_angle_differences
-
-POINT_MIN_DEVIATION_PX = 3.0
-"""A point match whose grid_cval deviation is below this [px] is never an outlier."""
-
-MIN_CELL_MATCHES = 3
-"""Cells with fewer matches than this are not judged: all their matches are kept."""
-
-LINE_MIN_ANGLE_CHANGE = np.deg2rad(5.0)
-"""A line match whose direction changes less than this [rad] is never an outlier by angle."""
-
-LINE_MIN_MIDPOINT_SHIFT_PX = 20.0
-"""A line match whose midpoint moves less than this [px] is never an outlier by shift."""
 
 
 def cross_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -178,17 +166,17 @@ def point_grid_filter(uv_prev: np.ndarray, uv_curr: np.ndarray, config: FiltersC
     """Keep-mask (N,) bool of frame-to-frame point matches by the grid_cval filter.
 
     A match is an outlier when its cell (in the previous image, ``point_grid_cell_width``
-    x ``point_grid_cell_height`` px) holds at least `MIN_CELL_MATCHES` matches and its
-    grid_cval deviation differs from the cell's median by more than
+    x ``point_grid_cell_height`` px) holds at least ``point_grid_min_cell_matches`` matches and
+    its grid_cval deviation differs from the cell's median by more than
     ``point_grid_alpha`` times the cell's mean absolute difference from that median and
-    by more than `POINT_MIN_DEVIATION_PX`.
+    by more than ``point_grid_min_deviation_px``.
 
     Parameters
     ----------
     uv_prev, uv_curr : (N, 2)
         Pixels (u, v) of each match in the previous and the current left image.
     config : FiltersConfig
-        The cell size and ``point_grid_alpha``.
+        The cell size, ``point_grid_alpha`` and the two ``point_grid_min_*`` bounds.
     """
     if len(uv_prev) == 0:
         return np.ones(0, dtype=bool)
@@ -196,8 +184,8 @@ def point_grid_filter(uv_prev: np.ndarray, uv_curr: np.ndarray, config: FiltersC
     deviations = grid_cval_deviations(uv_prev, uv_curr, cells)
     distances = np.abs(deviations - group_medians(deviations, cells)[cells])
     mean_distances = group_means(distances, cells)[cells]
-    judged = np.bincount(cells)[cells] >= MIN_CELL_MATCHES
-    return ~(judged & outlying(distances, mean_distances, config.point_grid_alpha, POINT_MIN_DEVIATION_PX))
+    judged = np.bincount(cells)[cells] >= config.point_grid_min_cell_matches
+    return ~(judged & outlying(distances, mean_distances, config.point_grid_alpha, config.point_grid_min_deviation_px))
 
 
 # --- lines -------------------------------------------------------------------------------
@@ -254,8 +242,8 @@ def line_llg_filter(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray, conf
 
     LLGs are formed in the previous image (`local_line_groups`). A match is an outlier
     when its angle change exceeds ``line_llg_factor`` times the mean over the other
-    lines of its LLG and `LINE_MIN_ANGLE_CHANGE`, or its midpoint shift exceeds
-    ``line_llg_factor`` times that mean and `LINE_MIN_MIDPOINT_SHIFT_PX`. A lone line is
+    lines of its LLG and ``line_llg_min_angle_change_deg``, or its midpoint shift exceeds
+    ``line_llg_factor`` times that mean and ``line_llg_min_midpoint_shift_px``. A lone line is
     compared with the means over all other matches. Fewer than two matches are kept.
 
     Parameters
@@ -264,7 +252,7 @@ def line_llg_filter(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray, conf
         Segments ``(u_s, v_s, u_e, v_e)`` [px] of each match in the previous and the
         current left image.
     config : FiltersConfig
-        ``line_llg_factor``.
+        ``line_llg_factor`` and the two ``line_llg_min_*`` floors.
     """
     if len(endpoints_prev) < 2:
         return np.ones(len(endpoints_prev), dtype=bool)
@@ -272,6 +260,7 @@ def line_llg_filter(endpoints_prev: np.ndarray, endpoints_curr: np.ndarray, conf
     angles = angle_changes(endpoints_prev, endpoints_curr)
     shifts = midpoint_shifts(endpoints_prev, endpoints_curr)
     factor = config.line_llg_factor
-    turned = outlying(angles, other_members_means(angles, groups), factor, LINE_MIN_ANGLE_CHANGE)
-    moved = outlying(shifts, other_members_means(shifts, groups), factor, LINE_MIN_MIDPOINT_SHIFT_PX)
+    min_angle = np.deg2rad(config.line_llg_min_angle_change_deg)
+    turned = outlying(angles, other_members_means(angles, groups), factor, min_angle)
+    moved = outlying(shifts, other_members_means(shifts, groups), factor, config.line_llg_min_midpoint_shift_px)
     return ~(turned | moved)

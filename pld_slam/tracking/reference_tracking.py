@@ -164,7 +164,7 @@ class ReferenceTracker:
                                                     T_c_r_predicted, trusted and not widened)
             solution = self._without_dynamic(solution, points, lines, labels)
         else:
-            labels = _labels_from_mask(features, kept, moving_mask)
+            labels = _labels_from_mask(features, kept, moving_mask, self._config.dynamic.mask_margin_px)
             solution = optimize_pose_rejecting_outliers(
                 self._camera, T_c_r_predicted, points=points, lines=lines, options=self._pose_options,
                 within=_static_observations(labels),
@@ -318,11 +318,13 @@ def _static_observations(labels: DynamicLabels) -> ObservationMasks:
     return ObservationMasks(~labels.point_dynamic, ~labels.line_dynamic, ~labels.line_dynamic)
 
 
-def _labels_from_mask(current: StereoFeatures, matches: FeatureMatches, moving_mask: np.ndarray) -> DynamicLabels:
-    """Dynamic labels of the matched features: those on the moving-object mask (H, W)."""
+def _labels_from_mask(
+    current: StereoFeatures, matches: FeatureMatches, moving_mask: np.ndarray, margin_px: int
+) -> DynamicLabels:
+    """Dynamic labels of the matched features: those on the moving-object mask (H, W) grown by ``margin_px``."""
     point_uv = current.points.uv[matches.points.current]
     segments = current.lines.endpoints[matches.lines.current]
-    point_dynamic, line_dynamic = features_on_mask(point_uv, segments, moving_mask)
+    point_dynamic, line_dynamic = features_on_mask(point_uv, segments, moving_mask, margin_px)
     return DynamicLabels(point_uv, point_dynamic, segments, line_dynamic)
 
 

@@ -22,7 +22,7 @@ from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.mapping.map import Map
-from pld_slam.matching.prior_free import pose_without_prior
+from pld_slam.matching.prior_free import PriorFreeOptions, pose_without_prior
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.tracking.local_map import LocalMap, LocalMapTracking, ReferenceMatches, gather_local_map, track_local_map
 
@@ -79,10 +79,10 @@ def track_from_scratch(
     keypoints (P_all,) and lines (L,) labelled dynamic (``point_dynamic``, ``line_dynamic``).
     None when none gave a pose on ``tracking.min_inliers`` landmarks.
     """
+    prior_free = PriorFreeOptions.of(config)
     for local_map in candidates:
         points = local_map.points
-        pose = pose_without_prior(camera, features.keypoints, points.geometry, points.descriptors,
-                                  config.tracking.max_point_distance, config.system.seed)
+        pose = pose_without_prior(camera, features.keypoints, points.geometry, points.descriptors, prior_free)
         if pose is None:
             continue
         tracking = track_local_map(

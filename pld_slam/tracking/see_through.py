@@ -12,20 +12,21 @@ landmark should stand, so the landmark is not there (free-space evidence, as den
 mapping carves space with it). Something nearer in front of a landmark (a truck, a
 pedestrian) makes the best disparity *larger*: that is an occlusion, and no evidence.
 
-`landmarks_seen_through` tests every point landmark of the local map the frame's solve
-did not find, in front of the camera and inside the image: the mean-free SAD of a
-`HALF_WINDOW` window (7 x 7 px at full resolution) against the right image at every
-disparity from 0 to `SEARCH_REACH` times the predicted one. Seen through: the best
-disparity lies farther than the landmark by more than `DEPTH_TOLERANCE` of its depth
-and `MARGIN_PX`, and its cost is at most `MATCH_RATIO` times both the cost at the
-prediction (plus or minus a pixel) and the window's own contrast (its SAD to a flat
-window). The second bound asks for a real match: a surface seen through matches to the
-noise, while a window on an occluder nearer than the search reaches matches nowhere and
-its best shift is chance. Flat windows match everywhere alike and give no evidence. The
-ids go, with those under movers, into local mapping's dynamic streak
-(`pld_slam.mapping.local_mapping`, step 2), which removes a landmark after
-``mapping.dynamic_streak`` (2) such frames unless tracking finds it in between.
-``mapping.see_through`` switches it off.
+`landmarks_seen_through` tests every point landmark of the local map the frame's solve did
+not find, in front of the camera and inside the image: the mean-free SAD of a window of
+``mapping.see_through_half_window`` (7 x 7 px at full resolution) against the right image
+at every disparity from 0 to ``mapping.see_through_reach`` (3) times the predicted one.
+Seen through: the best disparity lies farther than the landmark by more than
+``mapping.see_through_depth_tolerance`` (10 %) of its depth and
+``mapping.see_through_margin_px`` (1 px), and its cost is at most
+``mapping.see_through_match_ratio`` (0.5) times both the cost at the prediction (plus or
+minus a pixel) and the window's own contrast (its SAD to a flat window). The second bound
+asks for a real match: a surface seen through matches to the noise, while a window on an
+occluder nearer than the search reaches matches nowhere and its best shift is chance. Flat
+windows match everywhere alike and give no evidence. The ids go, with those under movers,
+into local mapping's dynamic streak (`pld_slam.mapping.local_mapping`, step 2), which
+removes a landmark after ``mapping.dynamic_streak`` (2) such frames unless tracking finds
+it in between. ``mapping.see_through`` switches it off.
 
 Not in the paper, which removes landmarks whose observations turn dynamic and says no more
 about landmarks left behind by movers. We add this test because the seen-through places
@@ -45,7 +46,7 @@ own match, not an occluder in front of it.
 
 Why these numbers. A search only up to 1.5 times the prediction "sees through" static
 landmarks behind crossing pedestrians much nearer than that; up to 3 times keeps them. A
-depth tolerance of 20 % (the one of `pld_slam.tracking.local_map.MOVER_DEPTH_TOLERANCE`)
+depth tolerance of 20 % (the one of ``mapping.mover_depth_tolerance``)
 missed outline landmarks a few metres in front of their background; 5 % changed one
 landmark, as a different run's chaos also does, so 10 % stays. Testing only the
 landmarks within a grid cell (64 px) of a feature labelled dynamic misses cars that drove
@@ -53,63 +54,83 @@ on: they are often no longer labelled near their landmarks
 (docs/decisions/0010-see-through.md).
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from pld_slam.config import MappingConfig
 from pld_slam.frontend.points import mean_free_window, sad_to_window
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.jit import kernel
 from pld_slam.tracking.local_map import MissedPoints
 
-HALF_WINDOW = 3
-"""Windows are ``2 * HALF_WINDOW + 1`` px square, at full resolution."""
-SEARCH_REACH = 3.0
-"""Disparities are searched from 0 to this times the landmark's predicted disparity (module docstring)."""
-DEPTH_TOLERANCE = 0.1
-"""The surface seen must lie farther than the landmark by more than this share of its depth..."""
-MARGIN_PX = 1.0
-"""... and by more than this disparity [px] (the search's whole-pixel step)."""
-MATCH_RATIO = 0.5
-"""... and cost at most this times both the cost at the landmark's own disparity and the window's contrast."""
+
+@dataclass(frozen=True)
+class SeeThroughOptions:
+    """What the window tests read of the configuration (module docstring).
+
+    half_window : windows are ``2 * half_window + 1`` px square, at full resolution
+        (``mapping.see_through_half_window``).
+    reach : disparities are searched from 0 to this times the predicted one (``mapping.see_through_reach``).
+    depth_tolerance, margin_px : the best disparity must lie outside the predicted one by more than this
+        share of the depth and this many pixels (``mapping.see_through_depth_tolerance``,
+        ``mapping.see_through_margin_px``).
+    match_ratio : and cost at most this times both the cost at the prediction and the window's contrast
+        (``mapping.see_through_match_ratio``).
+    """
+
+    half_window: int
+    reach: float
+    depth_tolerance: float
+    margin_px: float
+    match_ratio: float
+
+    @classmethod
+    def of(cls, config: MappingConfig) -> "SeeThroughOptions":
+        return cls(config.see_through_half_window, config.see_through_reach, config.see_through_depth_tolerance,
+                   config.see_through_margin_px, config.see_through_match_ratio)
 
 
-def landmarks_seen_through(camera: StereoCamera, missed: MissedPoints, left: np.ndarray, right: np.ndarray
-                           ) -> np.ndarray:
+def landmarks_seen_through(camera: StereoCamera, missed: MissedPoints, left: np.ndarray, right: np.ndarray,
+                           options: SeeThroughOptions) -> np.ndarray:
     """Ids (ascending) of the ``missed`` point landmarks (`missed_in_image`: in front of the
     camera, inside the image, not found by the frame's solve) that the rectified pair
     ``left``, ``right`` (H, W) uint8, taken where they were projected, sees through (module
     docstring)."""
     tested = np.flatnonzero(missed.missed)
-    windowed, u, v, disparity = _testable_windows(camera, missed.uv[tested], missed.p_c[tested, 2])
-    return missed.ids[tested[windowed][shows_farther_surface(left, right, u, v, disparity)]]
+    windowed, u, v, disparity = _testable_windows(camera, missed.uv[tested], missed.p_c[tested, 2],
+                                                  options.half_window)
+    return missed.ids[tested[windowed][shows_farther_surface(left, right, u, v, disparity, options)]]
 
 
-def _testable_windows(camera: StereoCamera, uv: np.ndarray, depth: np.ndarray
+def _testable_windows(camera: StereoCamera, uv: np.ndarray, depth: np.ndarray, half_window: int
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which landmarks at pixels ``uv`` (K, 2) and depths ``depth`` (K,) [m] can be tested (K,) bool: in front
-    of the camera, their window inside both images at their disparity + 1; and of those, the whole
-    pixel (u, v) int64 and the predicted disparity [px]."""
+    of the camera, their window (``half_window`` [px]) inside both images at their disparity + 1; and of
+    those, the whole pixel (u, v) int64 and the predicted disparity [px]."""
     pixels = np.rint(uv)
     disparity = camera.bf / np.where(depth > 0, depth, np.inf) + camera.disparity_offset
-    windowed = ((depth > 0) & camera.inside_image(pixels, HALF_WINDOW)
-                & (pixels[:, 0] - np.ceil(disparity) - 1 >= HALF_WINDOW))
+    windowed = ((depth > 0) & camera.inside_image(pixels, half_window)
+                & (pixels[:, 0] - np.ceil(disparity) - 1 >= half_window))
     u, v = pixels[windowed].astype(np.int64).T
     return windowed, u, v, disparity[windowed]
 
 
 def shows_farther_surface(
-    left: np.ndarray, right: np.ndarray, u: np.ndarray, v: np.ndarray, predicted: np.ndarray
+    left: np.ndarray, right: np.ndarray, u: np.ndarray, v: np.ndarray, predicted: np.ndarray,
+    options: SeeThroughOptions,
 ) -> np.ndarray:
     """Whether the left windows centred on pixels ``u``, ``v`` (K,) int64 show a surface farther
     than disparity ``predicted`` (K,) [px] (K,) bool: their best whole-pixel disparity, searched
-    from 0 to `SEARCH_REACH` x ``predicted`` (as far as the right image reaches), passes the
+    from 0 to ``options.reach`` x ``predicted`` (as far as the right image reaches), passes the
     tests of the module docstring. Windows must lie inside both images at ``predicted`` + 1.
 
     The farther shifts are searched first; the nearer ones only when a farther one matched
     clearly, to check that none matches better. Most windows stop after the farther third
     of the search, and a window's sum stops once it cannot be the cost looked for.
     """
-    return _windows_shown(left, right, u, v, predicted, HALF_WINDOW, SEARCH_REACH, DEPTH_TOLERANCE, MARGIN_PX,
-                          MATCH_RATIO, False)
+    return _windows_shown(left, right, u, v, predicted, options.half_window, options.reach, options.depth_tolerance,
+                          options.margin_px, options.match_ratio, False)
 
 
 @kernel
@@ -178,21 +199,24 @@ def _elsewhere_is_best(window, right, u, v, bound, last, below, above, half_wind
 
 
 def landmarks_found_at_another_depth(
-    camera: StereoCamera, ids: np.ndarray, uv: np.ndarray, p_c: np.ndarray, left: np.ndarray, right: np.ndarray
+    camera: StereoCamera, ids: np.ndarray, uv: np.ndarray, p_c: np.ndarray, left: np.ndarray, right: np.ndarray,
+    options: SeeThroughOptions,
 ) -> np.ndarray:
     """Ids of the point landmarks ``ids`` (K,) found by left-image-only keypoints at pixels ``uv`` (K, 2)
     whose window the rectified pair ``left``, ``right`` (H, W) uint8 matches clearly at another
     depth than the landmark's (camera frame ``p_c`` (K, 3)) (module docstring, "Found at another depth")."""
-    windowed, u, v, disparity = _testable_windows(camera, uv, p_c[:, 2])
-    return ids[windowed][shows_another_depth(left, right, u, v, disparity)]
+    windowed, u, v, disparity = _testable_windows(camera, uv, p_c[:, 2], options.half_window)
+    return ids[windowed][shows_another_depth(left, right, u, v, disparity, options)]
 
 
 def shows_another_depth(
-    left: np.ndarray, right: np.ndarray, u: np.ndarray, v: np.ndarray, predicted: np.ndarray
+    left: np.ndarray, right: np.ndarray, u: np.ndarray, v: np.ndarray, predicted: np.ndarray,
+    options: SeeThroughOptions,
 ) -> np.ndarray:
     """Whether the left windows centred on pixels ``u``, ``v`` (K,) int64 match the right image best,
-    and clearly (`MATCH_RATIO`), at a whole-pixel disparity from 0 to `SEARCH_REACH` x ``predicted``
-    (K,) [px] that lies outside ``predicted`` by more than `DEPTH_TOLERANCE` of it and
-    `MARGIN_PX`, on either side (K,) bool. Windows must lie inside both images at ``predicted`` + 1."""
-    return _windows_shown(left, right, u, v, predicted, HALF_WINDOW, SEARCH_REACH, DEPTH_TOLERANCE, MARGIN_PX,
-                          MATCH_RATIO, True)
+    and clearly (``options.match_ratio``), at a whole-pixel disparity from 0 to ``options.reach`` x
+    ``predicted`` (K,) [px] that lies outside ``predicted`` by more than ``options.depth_tolerance`` of it
+    and ``options.margin_px``, on either side (K,) bool. Windows must lie inside both images at
+    ``predicted`` + 1."""
+    return _windows_shown(left, right, u, v, predicted, options.half_window, options.reach, options.depth_tolerance,
+                          options.margin_px, options.match_ratio, True)

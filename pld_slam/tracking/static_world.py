@@ -56,8 +56,10 @@ the detectors (on whenever a detector is):
    local map they fill takes the camera along with the movers. When the static world itself exceeds the
    expected error (harder braking, a noisy velocity), the frame only pays for the RANSAC.
 
-RANSAC draws from a generator seeded with ``system.seed``: the same input gives the same
-labels.
+RANSAC draws ``dynamic.static_world_hypotheses`` (200) triples per motion: at least one lies
+wholly in a group of a quarter of the matches with probability 1 - (1 - 0.25**3)**200 = 0.96,
+of a third 0.9995. It draws from a generator seeded with ``system.seed``: the same input gives
+the same labels.
 """
 
 from dataclasses import dataclass
@@ -92,6 +94,7 @@ class StaticWorldOptions:
     motion_prior_m, motion_prior_deg : the motion model's expected error, the units of
         `motion_model_distance` (``dynamic.motion_prior_m``, ``dynamic.motion_prior_deg``).
     seed : seed of the RANSAC hypotheses (``system.seed``).
+    hypotheses : RANSAC hypotheses per motion (``dynamic.static_world_hypotheses``).
     """
 
     min_inliers: int
@@ -99,16 +102,12 @@ class StaticWorldOptions:
     motion_prior_m: float
     motion_prior_deg: float
     seed: int
+    hypotheses: int
 
     @classmethod
     def of(cls, config: Config) -> "StaticWorldOptions":
         return cls(config.tracking.min_inliers, config.dynamic.rival_min_share, config.dynamic.motion_prior_m,
-                   config.dynamic.motion_prior_deg, config.system.seed)
-
-
-HYPOTHESES = 200
-"""RANSAC hypotheses per motion: at least one of 200 triples lies wholly in a group of a
-quarter of the matches with probability 1 - (1 - 0.25**3)**200 = 0.96, of a third 0.9995."""
+                   config.dynamic.motion_prior_deg, config.system.seed, config.dynamic.static_world_hypotheses)
 
 
 @dataclass(frozen=True)
@@ -168,16 +167,16 @@ def refined_motion(camera: StereoCamera, T_c_r: np.ndarray, points: PointObserva
 
 
 def dominant_motion(camera: StereoCamera, points: PointObservations, among: np.ndarray, rng: np.random.Generator,
-                    options: PoseOnlyOptions) -> Motion | None:
+                    options: PoseOnlyOptions, hypotheses: int) -> Motion | None:
     """The motion with the most inliers ``among`` the point matches (N,) bool (module docstring,
-    step 3), refined on them; None with fewer than three stereo matches."""
+    step 3) of ``hypotheses`` RANSAC triples, refined on them; None with fewer than three stereo matches."""
     stereo = among & np.isfinite(points.stereo_px[:, 2]) & (points.stereo_px[:, 0] - points.stereo_px[:, 2] > 0.0)
     candidates = np.flatnonzero(stereo)
     if len(candidates) < 3:
         return None
-    triples = candidates[np.argsort(rng.random((HYPOTHESES, len(candidates))), axis=1)[:, :3]]
+    triples = candidates[np.argsort(rng.random((hypotheses, len(candidates))), axis=1)[:, :3]]
     current = points.stereo_px[triples.ravel()]
-    points_c = camera.triangulate(current[:, :2], current[:, 0] - current[:, 2]).reshape(HYPOTHESES, 3, 3)
+    points_c = camera.triangulate(current[:, :2], current[:, 0] - current[:, 2]).reshape(hypotheses, 3, 3)
     hypotheses = rigid_motions(points.points_w[triples], points_c)
     _, passed = stereo_point_chi2(camera, hypotheses, points, options)
     best = int(np.argmax((passed & among).sum(axis=1)))
@@ -198,7 +197,7 @@ def coherent_motions(camera: StereoCamera, points: PointObservations, n_matches:
     motions: list[Motion] = []
     remaining = np.ones(len(points.sigma_px), dtype=bool)
     while len(motions) < 2:
-        motion = dominant_motion(camera, points, remaining, rng, options)
+        motion = dominant_motion(camera, points, remaining, rng, options, world.hypotheses)
         if motion is None or motion.support < least_support(n_matches, world):
             break
         motions.append(motion)

@@ -68,7 +68,7 @@ from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.reference import DynamicIndices, LandmarkIds, ReferenceFrame, can_be_reference
 from pld_slam.tracking.reference_tracking import ReferenceTracker, ReferenceTracking, TrackingCounts, detectors_on
 from pld_slam.tracking.relocalisation import Relocalised, candidate_local_maps, track_from_scratch
-from pld_slam.tracking.see_through import landmarks_found_at_another_depth, landmarks_seen_through
+from pld_slam.tracking.see_through import SeeThroughOptions, landmarks_found_at_another_depth, landmarks_seen_through
 from pld_slam.tracking.static_world import StaticWorldOptions
 
 
@@ -182,11 +182,9 @@ class Tracker:
         self._reference_keyframe: KeyFrame | None = None
         self._frames_since_keyframe = 0
         self._keyframes = KeyframeSelector(config.keyframes)
-        self._pose_options = PoseOnlyOptions(
-            use_line_vertical=config.lines.vertical_error,
-            use_line_horizontal=config.lines.horizontal_error,
-        )
+        self._pose_options = PoseOnlyOptions.of(config)
         self._reference_tracker = ReferenceTracker(camera, config, self._pose_options)
+        self._see_through = SeeThroughOptions.of(config.mapping)
         self._reference: ReferenceFrame | None = None
         self._motion = MotionModel()
         self._state = TrackingState.NOT_INITIALISED
@@ -301,7 +299,8 @@ class Tracker:
             point_dynamic = np.zeros(len(features.keypoints), dtype=bool)
             line_dynamic = np.zeros(len(features.lines), dtype=bool)
         else:
-            point_dynamic, line_dynamic = features_on_mask(features.keypoints.uv, features.lines.endpoints, moving_mask)
+            point_dynamic, line_dynamic = features_on_mask(features.keypoints.uv, features.lines.endpoints, moving_mask,
+                                                           self._config.dynamic.mask_margin_px)
         dynamic = DynamicIndices(np.flatnonzero(point_dynamic), np.flatnonzero(line_dynamic))
         self._reference = ReferenceFrame(features, np.eye(4), dynamic)
         self._state = TrackingState.INITIALISED
@@ -338,12 +337,13 @@ class Tracker:
         """``map_tracking`` with, among its dynamic point landmarks, the missed ones the pair sees through and
         the ones found by a keypoint without a stereo match where the pair shows another depth
         (`pld_slam.tracking.see_through`)."""
-        seen_through = landmarks_seen_through(self._camera, map_tracking.missed, left, right)
+        seen_through = landmarks_seen_through(self._camera, map_tracking.missed, left, right, self._see_through)
         mono = np.flatnonzero(map_tracking.point_ids >= 0)
         mono = mono[mono >= features.keypoints.n_stereo]
         ids = map_tracking.point_ids[mono]
         p_c = transform_points(map_tracking.solution.T_c_w, self._map.points.geometry[ids])
-        elsewhere = landmarks_found_at_another_depth(self._camera, ids, features.keypoints.uv[mono], p_c, left, right)
+        elsewhere = landmarks_found_at_another_depth(self._camera, ids, features.keypoints.uv[mono], p_c, left, right,
+                                                     self._see_through)
         return dataclasses.replace(
             map_tracking, dynamic_point_ids=np.union1d(map_tracking.dynamic_point_ids,
                                                        np.union1d(seen_through, elsewhere))
