@@ -295,7 +295,7 @@ class TrackingConfig:
     pose_max_nfev: int = _param(100, "residual evaluations allowed per pose-only solve", 1, 10_000)
     pose_cost_tolerance: float = _param(
         1e-5, "a pose-only solve stops when a step lowers the cost by less than this share of it (least_squares' "
-        "ftol; write a power of ten as 1.0e-6, YAML reads 1e-6 as text)", 1e-12, 0.5
+        "ftol)", 1e-12, 0.5
     )
 
 
@@ -405,7 +405,7 @@ class MappingConfig:
     )
     ba_cost_tolerance: float = _param(
         1e-3, "local and global BA stop when a step lowers the cost by less than this share of it (least_squares' "
-        "ftol; write 1.0e-6, not 1e-6): they refine a map tracking put near its optimum", 1e-12, 0.5
+        "ftol): they refine a map tracking put near its optimum", 1e-12, 0.5
     )
     ba_lsmr_iterations: int = _param(
         10, "LSMR iterations of each step of local and global BA (an inexact Gauss-Newton step the trust region "
@@ -607,7 +607,8 @@ def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, valu
     """Return ``value`` converted to the field's type ``kind``, or raise `ConfigError`.
 
     Accepted: bool only for bool (YAML ``true``/``false``); int for int (not bool); int or
-    float for float; one of the listed strings for a Literal; a string for str.
+    float for float, or text that is a number (PyYAML reads ``1e-6``, without a dot, as
+    text); one of the listed strings for a Literal; a string for str.
     """
     got = f"{type(value).__name__} {value!r}"
     if typing.get_origin(kind) is Literal:
@@ -629,6 +630,8 @@ def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, valu
             raise ConfigError(f"{where}: {name} must be an integer, got {got}")
         high = INT_MAX if high is None else high
     elif kind is float:
+        if isinstance(value, str):
+            value = _number_or_text(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: {name} must be a number, got {got}")
         if not math.isfinite(value):
@@ -639,6 +642,35 @@ def _check_value(where: str, name: str, kind: Any, spec: dataclasses.Field, valu
         bounds = f"[{low if low is not None else '-inf'}, {high if high is not None else 'inf'}]"
         raise ConfigError(f"{where}: {name} = {value!r} is outside {bounds}")
     return value
+
+
+def _number_or_text(text: str) -> float | str:
+    """``text`` as a float where it spells one (``1e-6``), else unchanged."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+ORDERED_KEYS = (
+    ("calibration.min_anchors", "calibration.anchors"),
+    ("calibration.min_frame_gap", "calibration.max_frame_gap"),
+    ("calibration.pair_pose_robust_rounds", "calibration.pair_pose_rounds"),
+    ("points.min_depth_baselines", "points.max_depth_baselines"),
+    ("lines.min_depth_baselines", "lines.max_depth_baselines"),
+    ("lines.edge_min_samples", "lines.edge_max_samples"),
+    ("tracking.pose_robust_rounds", "tracking.pose_rounds"),
+)
+"""Pairs of keys whose first may not exceed the second: in the wrong order each would quietly
+switch something off (no disparity-offset estimate ever, no stereo point, every round robust)."""
+
+
+def check_key_order(config: Config, where: str) -> None:
+    """Raise `ConfigError` naming ``where`` when a pair of `ORDERED_KEYS` is out of order."""
+    for lower, upper in ORDERED_KEYS:
+        low, high = (getattr(getattr(config, key.split(".")[0]), key.split(".")[1]) for key in (lower, upper))
+        if low > high:
+            raise ConfigError(f"{where}: {lower} = {low!r} exceeds {upper} = {high!r}")
 
 
 def _section_types() -> dict[str, type]:
@@ -718,6 +750,7 @@ def load_config(paths: Sequence[Path] = (), overrides: Sequence[str] = ()) -> Co
         config = apply_mapping(config, read_yaml(path), str(path))
     for text in overrides:
         config = apply_mapping(config, parse_override(text), f"--set {text}")
+    check_key_order(config, ", ".join([*map(str, paths), *(f"--set {text}" for text in overrides)]) or "defaults")
     return config
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from pld_slam.config import Config, dump_config, load_config
+from pld_slam.config import ORDERED_KEYS, Config, dump_config, load_config
 from pld_slam.errors import ConfigError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -131,3 +131,24 @@ def test_empty_file_changes_nothing(tmp_path):
     empty = tmp_path / "empty.yaml"
     empty.write_text("# nothing here\n")
     assert load_config([empty]) == Config()
+
+
+def test_a_number_written_without_a_dot_is_a_number(tmp_path):
+    """PyYAML (YAML 1.1) reads ``1e-6`` as text; a float key takes it as the number it spells."""
+    assert load_config(overrides=["tracking.pose_cost_tolerance=1e-6"]).tracking.pose_cost_tolerance == 1e-6
+    path = tmp_path / "tolerance.yaml"
+    path.write_text("mapping:\n  ba_cost_tolerance: 2e-4\n")
+    assert load_config([path]).mapping.ba_cost_tolerance == 2e-4
+    with pytest.raises(ConfigError, match="must be a number, got str 'fast'"):
+        load_config(overrides=["tracking.pose_cost_tolerance=fast"])
+
+
+@pytest.mark.parametrize("lower, upper", ORDERED_KEYS)
+def test_keys_out_of_order_are_an_error_naming_both(lower, upper):
+    """Each pair of `ORDERED_KEYS` holds at the defaults, and the first set above the second is refused."""
+    config = load_config()
+    section, key = upper.split(".")
+    high = getattr(getattr(config, section), key)
+    above = high + 1 if isinstance(high, int) else high * 2.0
+    with pytest.raises(ConfigError, match=f"{lower} = .* exceeds {upper} = "):
+        load_config(overrides=[f"{lower}={above}", f"{upper}={high}"])
