@@ -322,7 +322,8 @@ class DynamicConfig:
     )
     rival_min_share: float = _param(
         0.15, "a robust solve that rejects this share of the matches is checked for the static world's motion, "
-        "and a coherent motion needs this share as inliers to be a candidate (pld_slam.tracking.static_world)", 0.0, 1.0
+        "and a coherent motion needs this share as inliers to be a candidate (pld_slam.localisation.static_world)",
+        0.0, 1.0
     )
     motion_prior_m: float = _param(
         0.05, "expected error of the constant-velocity prediction per frame [m]: a motion within it agrees with the "
@@ -339,7 +340,7 @@ class DynamicConfig:
     )
     static_world_hypotheses: int = _param(
         200, "RANSAC hypotheses (triples of stereo matches) per coherent motion of the static-world check "
-        "(pld_slam.tracking.static_world)", 1, 100_000
+        "(pld_slam.localisation.static_world)", 1, 100_000
     )
 
 

@@ -2,7 +2,7 @@
 
 A bus alongside and a truck ahead drive at our speed and cover a third of the image: the
 robust solve alone follows them, the detectors (with the static-world check of
-`pld_slam.tracking.static_world`) keep to the static world, and the true masks bound them.
+`pld_slam.localisation.static_world`) keep to the static world, and the true masks bound them.
 """
 
 from pathlib import Path
@@ -140,7 +140,7 @@ def test_a_parked_car_that_pulls_out_leaves_the_map(tmp_path, seed):
     """The first car of ``parked_then_moving`` rests from frame 0 to 18, entering the map, then
     pulls out. Five keyframes later at most an eighth of the point landmarks made on it at rest
     are alive. Seed 1: none of 16 with the landmarks missed under a mover anywhere in the image
-    counted as seen moving (`pld_slam.tracking.local_map.missed_near_movers`), 3 when only
+    counted as seen moving (`pld_slam.localisation.local_map.missed_near_movers`), 3 when only
     those the search of the local map tried counted, 8 when only those matched to dynamic
     features counted. Seed 2: none of 25 with the points the stereo pair sees through counted
     too (`pld_slam.tracking.see_through`) and the landmarks missed in view for

@@ -1,4 +1,4 @@
-"""Missed point landmarks judged by the movers near them (`pld_slam.tracking.local_map.missed_near_movers`):
+"""Missed point landmarks judged by the movers near them (`pld_slam.localisation.local_map.missed_near_movers`):
 under a mover at their depth, and missed in view unless a nearer mover hides them."""
 
 import numpy as np
@@ -7,8 +7,8 @@ import pytest
 from pld_slam.config import MappingConfig, load_config
 from pld_slam.frontend import StereoPoints
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.localisation.local_map import missed_in_image, missed_near_movers
 from pld_slam.matching.projection import LandmarkSnapshot
-from pld_slam.tracking.local_map import missed_in_image, missed_near_movers
 
 CAMERA = StereoCamera(fx=400.0, fy=400.0, cx=320.0, cy=240.0, baseline=0.5, width=640, height=480)
 RADIUS_PX = 64.0

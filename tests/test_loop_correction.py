@@ -10,11 +10,11 @@ from map_fixtures import CAMERA, camera_at, make_keyframe, random_descriptors, s
 
 from pld_slam.config import Config
 from pld_slam.geometry.se3 import se3_exp, transform_points
+from pld_slam.localisation.local_map import local_map_of
 from pld_slam.loop import loop_closing
 from pld_slam.loop.loop_closing import LoopClosing
 from pld_slam.loop.verify import GeometricCheck, around, present_landmarks
 from pld_slam.mapping.map import Map
-from pld_slam.tracking.local_map import local_map_of
 
 N_KEYFRAMES, SHARED = 12, 20
 """Keyframe k observes points ``SHARED*k .. SHARED*k + 2*SHARED - 1``: it shares SHARED with each neighbour in

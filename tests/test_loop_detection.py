@@ -20,6 +20,7 @@ from map_fixtures import (
 from pld_slam.config import Config, GgsConfig, LoopConfig
 from pld_slam.frontend.ggs import ggs_and_place_descriptors
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp, transform_points
+from pld_slam.localisation.local_map import local_map_of
 from pld_slam.loop.bow_detector import BowDatabase, BowDetector
 from pld_slam.loop.ggs_detector import GgsDetector, ggs_loop_candidates
 from pld_slam.loop.verify import (
@@ -34,7 +35,6 @@ from pld_slam.loop.verify import (
 from pld_slam.loop.vocabulary import bow_score, build_vocabulary
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
-from pld_slam.tracking.local_map import local_map_of
 
 WIDTH, STEP = 160, 12
 """Each keyframe sees a WIDTH-pixel window of one long panorama, STEP pixels on from the last one's."""

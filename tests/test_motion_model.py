@@ -5,8 +5,8 @@ import numpy as np
 
 from pld_slam.config import load_config
 from pld_slam.geometry.se3 import inverse
+from pld_slam.localisation.static_world import StaticWorldOptions
 from pld_slam.tracking.motion_model import MotionModel
-from pld_slam.tracking.static_world import StaticWorldOptions
 
 
 def pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:

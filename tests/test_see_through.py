@@ -5,8 +5,8 @@ import pytest
 
 from pld_slam.config import load_config
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.localisation.local_map import missed_in_image
 from pld_slam.matching.projection import LandmarkSnapshot
-from pld_slam.tracking.local_map import missed_in_image
 from pld_slam.tracking.see_through import (
     SeeThroughOptions,
     landmarks_found_at_another_depth,

@@ -1,4 +1,4 @@
-"""Which coherent motion is the static world's (`pld_slam.tracking.static_world`), on constructed frames.
+"""Which coherent motion is the static world's (`pld_slam.localisation.static_world`), on constructed frames.
 
 A frame sees two rigid groups of stereo points: the static world, farther (5-30 m), which
 the camera passes at 0.8 m per frame, and a convoy, near (3-9 m) and more numerous,
@@ -13,9 +13,7 @@ from finite_differences import CAMERA
 
 from pld_slam.config import Config, load_config
 from pld_slam.geometry.se3 import inverse, make_pose, so3_exp, transform_points
-from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations, WhitenedRows
-from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose_rejecting_outliers
-from pld_slam.tracking.static_world import (
+from pld_slam.localisation.static_world import (
     StaticWorldOptions,
     background_motion,
     coherent_motions,
@@ -25,6 +23,8 @@ from pld_slam.tracking.static_world import (
     static_world_solution,
     stereo_point_chi2,
 )
+from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations, WhitenedRows
+from pld_slam.optim.pose_only import PoseOnlyOptions, optimize_pose_rejecting_outliers
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = load_config([CONFIGS / "default.yaml"])

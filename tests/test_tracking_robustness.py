@@ -18,11 +18,11 @@ from pld_slam.datasets import open_sequence
 from pld_slam.eval import evaluate
 from pld_slam.frontend import extract_stereo_features
 from pld_slam.geometry.se3 import inverse
+from pld_slam.localisation.local_map import LocalMap, gather_local_map
 from pld_slam.matching.projection import LandmarkSnapshot
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.synth import write_sequence
 from pld_slam.system import System
-from pld_slam.tracking.local_map import LocalMap, gather_local_map
 from pld_slam.tracking.relocalisation import candidate_local_maps, track_from_scratch
 from pld_slam.tracking.tracker import TrackingState, TrackingStatus
 

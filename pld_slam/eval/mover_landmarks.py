@@ -29,11 +29,11 @@ from functools import partial
 import numpy as np
 
 from pld_slam.config import MappingConfig
+from pld_slam.localisation.local_map import points_in_view
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.landmarks import Landmarks, PointLandmarks
 from pld_slam.mapping.map import Map
 from pld_slam.synth.scenarios import Scenario
-from pld_slam.tracking.local_map import points_in_view
 
 GROUPS = ("at rest", "at rest, out of view", "moving")
 """The groups of `MoverLandmarks.rows`: made at rest; of those, in no keyframe's view since the

@@ -71,11 +71,7 @@ from pld_slam.config import Config, LoopConfig
 from pld_slam.geometry import places
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, motion_size, se3_log
-from pld_slam.mapping.keyframe import KeyFrame
-from pld_slam.mapping.map import Map
-from pld_slam.matching.prior_free import PriorFreeOptions, pose_without_prior
-from pld_slam.optim.pose_only import PoseOnlyOptions
-from pld_slam.tracking.local_map import (
+from pld_slam.localisation.local_map import (
     LocalMap,
     LocalMapTracking,
     ReferenceMatches,
@@ -83,6 +79,10 @@ from pld_slam.tracking.local_map import (
     observed_landmarks,
     track_local_map,
 )
+from pld_slam.mapping.keyframe import KeyFrame
+from pld_slam.mapping.map import Map
+from pld_slam.matching.prior_free import PriorFreeOptions, pose_without_prior
+from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.trajectory import polyline_length
 
 

@@ -58,7 +58,7 @@ class Landmarks:
       how many of them tracking matched it (the culling test of ORB-SLAM2);
     - ``dynamic_streak``: (N,) frames since tracking last found it among the static
       features in which it matched a feature labelled dynamic or lay under one
-      (`pld_slam.tracking.local_map.missed_near_movers`); a find within
+      (`pld_slam.localisation.local_map.missed_near_movers`); a find within
       ``mapping.dynamic_memory`` tracked frames of such a frame does not end the streak;
     - ``moving_frame``: (N,) rank, among the tracked frames, of the last frame that saw it
       moving (a large negative number before any);

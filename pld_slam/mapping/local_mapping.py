@@ -15,14 +15,14 @@ a method below:
    in ``mapping.dynamic_streak`` (2) frames since tracking last found it among the static
    features dies too (the paper: movers must not stay in the map): matched to a feature
    labelled dynamic, predicted where it is missed under a mover
-   (`pld_slam.tracking.local_map.missed_near_movers`), or missed where the stereo pair
+   (`pld_slam.localisation.local_map.missed_near_movers`), or missed where the stereo pair
    shows a farther surface (`pld_slam.tracking.see_through`). A find within
    ``mapping.dynamic_memory`` (10) tracked frames after a frame that saw the landmark
    moving does not end its streak. A landmark of any age in view that tracking misses in
    ``mapping.max_missed_frames`` (10) frames, with no find in between, dies too: a point
    in front of the camera and inside the image, beyond its search range or not (the range
    bounds where its descriptor matches, not where it can be seen), and not hidden by a
-   nearer mover (`pld_slam.tracking.local_map.missed_near_movers`); a line predicted in
+   nearer mover (`pld_slam.localisation.local_map.missed_near_movers`); a line predicted in
    view. The paper leaves culling open; ORB-SLAM2 judges only new landmarks. We add the
    streaks because a parked car that pulls out was found static in dozens of frames
    (a streak, not a share of all sightings), a creeping car is labelled only now and

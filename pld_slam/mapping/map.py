@@ -4,7 +4,7 @@ The map is the only writer of its data: keyframe poses, landmark columns (read-o
 views everywhere else, `pld_slam.mapping.landmarks.Landmarks.writable`) and observations
 change through its methods, which local mapping, loop closing, the BA write-back and
 tracking's frame counts call; `tests/test_map_writes.py` holds every other module to that.
-Tracking reads it through `pld_slam.tracking.local_map`. Observations change through a few
+Tracking reads it through `pld_slam.localisation.local_map`. Observations change through a few
 methods that keep the two copies of an observation in step (a keyframe's landmark id per
 feature, a landmark's ``{keyframe: feature}``, see `pld_slam.mapping.landmarks`), the
 observer counts, and the covisibility links: each observation added or removed changes
@@ -246,7 +246,7 @@ class Map:
         """Count one tracked frame in the landmarks' statistics, each argument (point ids, line ids).
 
         ``visible`` (within the search's bounds), ``found`` (static inliers), ``missed`` in view
-        (`pld_slam.tracking.local_map.LocalMapTracking.missed_point_ids`), ``dynamic``: seen
+        (`pld_slam.localisation.local_map.LocalMapTracking.missed_point_ids`), ``dynamic``: seen
         moving (matched to a feature labelled dynamic, lying under one, or seen through). Found
         ends the missed streak, and the dynamic one unless the landmark was seen moving in the
         last ``dynamic_memory`` tracked frames (``moving_frame`` counts frames by this clock).

@@ -2,7 +2,7 @@
 
 A snapshot of some landmarks (`LandmarkSnapshot`: copies of their map columns) is
 projected into frames at given poses and matched to their features. Called by tracking
-for its local map (`pld_slam.tracking.local_map`, which loop verification's geometric
+for its local map (`pld_slam.localisation.local_map`, which loop verification's geometric
 check also runs, `pld_slam.loop.verify`) and by fusion, which projects a keyframe's
 landmarks into all its neighbours at once (`pld_slam.matching.fusion`).
 
@@ -22,7 +22,7 @@ point is found again where its corner is detected, stereo-matched or not); for a
 keypoint, its right-image column must also lie within the window of the predicted one.
 Keypoints without a stereo match are monocular observations (`pld_slam.optim.observations`).
 The smallest Hamming distance under the caller's bound wins if it passes the caller's
-ratio test (tracking's bounds: `pld_slam.tracking.local_map`; fusion's:
+ratio test (tracking's bounds: `pld_slam.localisation.local_map`; fusion's:
 `pld_slam.matching.fusion`).
 
 Lines: as frame-to-frame line matching (`pld_slam.matching.frames.match_predicted_segments`),

@@ -3,7 +3,7 @@
 `pairs_within` runs a numba kernel over square cells. Called by frame-to-frame matching
 (`pld_slam.matching.frames`), the projection search of map landmarks
 (`pld_slam.matching.projection`) and tracking's judgement of the landmarks missed near
-movers (`pld_slam.tracking.local_map.missed_near_movers`).
+movers (`pld_slam.localisation.local_map.missed_near_movers`).
 """
 
 import numpy as np

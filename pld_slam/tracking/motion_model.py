@@ -16,7 +16,7 @@ distances from it are in units of its expected error (`static_world.motion_model
 import numpy as np
 
 from pld_slam.geometry.se3 import inverse, nearest_pose
-from pld_slam.tracking.static_world import StaticWorldOptions, motion_model_distance
+from pld_slam.localisation.static_world import StaticWorldOptions, motion_model_distance
 
 
 class MotionModel:

@@ -22,12 +22,12 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.se3 import transform_points
+from pld_slam.localisation.local_map import ReferenceMatches
 from pld_slam.mapping.landmarks import Landmarks
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import FrameMatches
 from pld_slam.optim.pose_only import PoseOnlyResult
 from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.local_map import ReferenceMatches
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse
+from pld_slam.localisation.static_world import StaticWorldOptions, static_world_solution
 from pld_slam.matching.frames import FrameMatches, match_lines, match_points, predict_segments
 from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.optim.observations import LineObservations, ObservationMasks, PointObservations
@@ -36,7 +37,6 @@ from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.outliers import line_llg_filter, point_grid_filter
 from pld_slam.tracking.reference import FeatureMatches, ReferenceFrame
-from pld_slam.tracking.static_world import StaticWorldOptions, static_world_solution
 
 
 @dataclass(frozen=True)

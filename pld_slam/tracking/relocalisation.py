@@ -21,10 +21,16 @@ import numpy as np
 from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures
 from pld_slam.geometry.camera import StereoCamera
+from pld_slam.localisation.local_map import (
+    LocalMap,
+    LocalMapTracking,
+    ReferenceMatches,
+    gather_local_map,
+    track_local_map,
+)
 from pld_slam.mapping.map import Map
 from pld_slam.matching.prior_free import PriorFreeOptions, pose_without_prior
 from pld_slam.optim.pose_only import PoseOnlyOptions
-from pld_slam.tracking.local_map import LocalMap, LocalMapTracking, ReferenceMatches, gather_local_map, track_local_map
 
 
 @dataclass(frozen=True)

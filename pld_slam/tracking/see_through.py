@@ -1,7 +1,7 @@
 """Point landmarks the stereo pair sees through: a farther surface shows where the landmark should be.
 
 A parked car that pulls out leaves its landmarks in the map. Most of them die through
-`pld_slam.tracking.local_map.missed_near_movers`: the car, labelled dynamic, still
+`pld_slam.localisation.local_map.missed_near_movers`: the car, labelled dynamic, still
 stands at their depth. What that rule cannot see is a landmark with nothing moving at its
 depth any more: the car has driven on, or the landmark was never on a surface at all (a
 corner of the car's outline against the background, triangulated a few metres in front
@@ -62,7 +62,7 @@ from pld_slam.config import MappingConfig
 from pld_slam.frontend.points import mean_free_window, sad_to_window
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.jit import kernel
-from pld_slam.tracking.local_map import MissedPoints
+from pld_slam.localisation.local_map import MissedPoints
 
 
 @dataclass(frozen=True)

@@ -56,20 +56,20 @@ from pld_slam.frontend.ggs import ggs_distance
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import inverse, transform_points
 from pld_slam.keyframes import KeyframeEvidence, KeyframeReason, KeyframeSelector
+from pld_slam.localisation.local_map import LocalMap, LocalMapTracking, gather_local_map
+from pld_slam.localisation.local_map import track_local_map as track_against_local_map
+from pld_slam.localisation.static_world import StaticWorldOptions
 from pld_slam.mapping.keyframe import KeyFrame
 from pld_slam.mapping.map import Map
 from pld_slam.optim.pose_only import PoseOnlyOptions
 from pld_slam.timing import StageClock
 from pld_slam.tracking.dynamic import DynamicLabels
-from pld_slam.tracking.local_map import LocalMap, LocalMapTracking, gather_local_map
-from pld_slam.tracking.local_map import track_local_map as track_against_local_map
 from pld_slam.tracking.motion_model import MotionModel
 from pld_slam.tracking.moving_masks import features_on_mask
 from pld_slam.tracking.reference import DynamicIndices, LandmarkIds, ReferenceFrame, can_be_reference
 from pld_slam.tracking.reference_tracking import ReferenceTracker, ReferenceTracking, TrackingCounts, detectors_on
 from pld_slam.tracking.relocalisation import Relocalised, candidate_local_maps, track_from_scratch
 from pld_slam.tracking.see_through import SeeThroughOptions, landmarks_found_at_another_depth, landmarks_seen_through
-from pld_slam.tracking.static_world import StaticWorldOptions
 
 
 class TrackingStatus(enum.Enum):

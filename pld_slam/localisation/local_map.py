@@ -48,7 +48,7 @@ out takes its corners along. (The tracker adds the missed points its stereo pair
 through, `pld_slam.tracking.see_through`.) A mover that entered the map before
 the detectors caught it (the first keyframe has no labels; a parked car that pulls out)
 can still pull the solve; with ``check_static_world`` the local map's solve gets the same
-check as the reference solve (`pld_slam.tracking.static_world`), the pose it started from
+check as the reference solve (`pld_slam.localisation.static_world`), the pose it started from
 (the reference solve's, already checked) as the prediction, and the landmarks found
 moving there are reported as dynamic too.
 """
@@ -61,13 +61,13 @@ from pld_slam.config import Config
 from pld_slam.frontend import StereoFeatures, StereoPoints
 from pld_slam.geometry.camera import StereoCamera
 from pld_slam.geometry.se3 import transform_points
+from pld_slam.localisation.static_world import StaticWorldOptions, static_world_solution
 from pld_slam.mapping.map import Map
 from pld_slam.matching.frames import MIN_SEARCH_DEPTH, FrameMatches
 from pld_slam.matching.observations import line_observations, point_observations
 from pld_slam.matching.projection import LandmarkSnapshot, ProjectionSearch, match_map_lines, match_map_points
 from pld_slam.matching.windows import pairs_within
 from pld_slam.optim.pose_only import PoseOnlyOptions, PoseOnlyResult, optimize_pose_rejecting_outliers
-from pld_slam.tracking.static_world import StaticWorldOptions, static_world_solution
 
 
 @dataclass(frozen=True)
