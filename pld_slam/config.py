@@ -656,14 +656,12 @@ def _number_or_text(text: str) -> float | str:
 ORDERED_KEYS = (
     ("calibration.min_anchors", "calibration.anchors"),
     ("calibration.min_frame_gap", "calibration.max_frame_gap"),
-    ("calibration.pair_pose_robust_rounds", "calibration.pair_pose_rounds"),
     ("points.min_depth_baselines", "points.max_depth_baselines"),
     ("lines.min_depth_baselines", "lines.max_depth_baselines"),
     ("lines.edge_min_samples", "lines.edge_max_samples"),
-    ("tracking.pose_robust_rounds", "tracking.pose_rounds"),
 )
 """Pairs of keys whose first may not exceed the second: in the wrong order each would quietly
-switch something off (no disparity-offset estimate ever, no stereo point, every round robust)."""
+switch something off (no disparity-offset estimate ever, no stereo point or line)."""
 
 
 def check_key_order(config: Config, where: str) -> None:
