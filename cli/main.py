@@ -36,7 +36,7 @@ import traceback
 import click
 
 from pld_slam import __version__
-from pld_slam.errors import PldSlamError, Terminated, stop_on_sigterm
+from pld_slam.errors import PldSlamError, Terminated, end_on_stop_signals, stop_on_sigterm
 
 EXIT_USER_ERROR = 2
 EXIT_BUG = 1
@@ -97,8 +97,7 @@ def _command_over(obj) -> None:
     when the console script asked for it in the context's ``obj`` (`main`); a command invoked in
     process keeps its caller's."""
     if isinstance(obj, dict) and obj.get(_SIGNALS_DEFAULT_WHEN_OVER):
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, signal.SIG_DFL)
+        end_on_stop_signals()
 
 
 def _report(ctx: click.Context, line: str, exit_code: int) -> None:

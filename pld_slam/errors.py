@@ -29,6 +29,17 @@ def stop_on_sigterm(signum: int, frame) -> None:
     raise Terminated
 
 
+def end_on_stop_signals() -> None:
+    """Give Ctrl-C and SIGTERM their default action back: the process ends at once, killed by the signal.
+
+    For a process whose work is done (its files written). Raised from a Python handler during the
+    interpreter's shutdown instead, they print a traceback from whatever atexit callback or thread
+    join is running and the process exits 0 (issue 43).
+    """
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_DFL)
+
+
 @dataclass
 class HeldInterrupt:
     """What `deferred_interrupts` held: the first Ctrl-C (`KeyboardInterrupt`) or SIGTERM (`Terminated`) that

@@ -617,6 +617,32 @@ def test_sigterm_once_the_command_has_ended_ends_the_process_without_a_traceback
     assert "\ntracking:\n" in child.stdout  # the command had printed the configuration
 
 
+CELL_SIGTERM_AT_EXIT = """
+import atexit, os, signal, sys, time
+from pld_slam.report.cell_run import main
+
+def sigterm_now():
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)
+
+atexit.register(sigterm_now)
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_an_ablation_cells_run_ends_without_a_traceback_on_a_sigterm_after_its_files(synthetic_sequence, tmp_path):
+    # The cell's child process had the same handler as pld-slam: a SIGTERM during its shutdown printed a
+    # traceback ("Exception ignored in atexit callback") and exited 0. Its files are written: the signal ends it.
+    config = tmp_path / "cell.yaml"
+    config.write_text("")
+    run_dir = tmp_path / "cell"
+    child = subprocess.run([sys.executable, "-c", CELL_SIGTERM_AT_EXIT, str(synthetic_sequence), str(run_dir),
+                            str(config)], capture_output=True, text=True, timeout=300)
+    assert child.returncode == -signal.SIGTERM, child.stderr
+    assert "Traceback" not in child.stderr and "Exception ignored" not in child.stderr
+    assert (run_dir / "trajectory.tum.txt").exists()
+
+
 def pose_rows(path) -> int:
     """Complete pose lines of a TUM file being written (0 while it does not exist)."""
     if not path.exists():

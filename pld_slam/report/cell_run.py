@@ -4,7 +4,8 @@ It runs `pld_slam.report.run_files.run_and_write` on the sequence folder with th
 config file as its only ``--config``, the call ``pld-slam run`` makes, so a cell measures
 what a user runs. SIGTERM stops it as Ctrl-C does (`pld_slam.errors.stop_on_sigterm`):
 the run writes its files so far, the last line on stderr says how far it got, and the
-exit code is `EXIT_STOPPED`. Any other failure ends it as Python does, with the traceback
+exit code is `EXIT_STOPPED`; once the run has returned, a signal ends the process at once
+(`pld_slam.errors.end_on_stop_signals`). Any other failure ends it as Python does, with the traceback
 on stderr (its last line the error) and exit code 1; `pld_slam.report.cells` takes that
 last line as the cell's reason.
 """
@@ -14,7 +15,7 @@ import sys
 from pathlib import Path
 
 from pld_slam.datasets import open_sequence
-from pld_slam.errors import stop_on_sigterm
+from pld_slam.errors import end_on_stop_signals, stop_on_sigterm
 from pld_slam.report.run_files import run_and_write
 
 EXIT_STOPPED = 1
@@ -26,8 +27,11 @@ def main(arguments: list[str]) -> int:
     sequence_dir, run_dir, config_path, *max_frames = arguments
     signal.signal(signal.SIGTERM, stop_on_sigterm)
     try:
-        run_and_write(open_sequence(Path(sequence_dir)), Path(run_dir), (Path(config_path),), (),
-                      int(max_frames[0]) if max_frames else None)
+        try:
+            run_and_write(open_sequence(Path(sequence_dir)), Path(run_dir), (Path(config_path),), (),
+                          int(max_frames[0]) if max_frames else None)
+        finally:
+            end_on_stop_signals()  # the files are written: a signal now ends the process, as pld-slam's does
     except KeyboardInterrupt as interrupt:
         print(f"stopped {interrupt}", file=sys.stderr)
         return EXIT_STOPPED
