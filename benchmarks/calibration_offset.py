@@ -17,7 +17,10 @@ estimator itself, which the real extracts cannot (KITTI 04's ground-truth motion
 -0.14 to +0.03 px depending on the frame gap, `benchmarks/stereo_depth.py`).
 
     python benchmarks/calibration_offset.py [--scenario highway] [--seeds 0,1,2] [--deltas -0.12,0,0.12]
-                                            [--frames 100] [--cut 26] [--camera kitti] [--run] [--out DIR]
+                                            [--frames 100] [--cut 26] [--camera kitti] [--set KEY=VALUE ...]
+                                            [--run] [--out DIR]
+
+``--set`` applies to the estimate and the runs alike (a before/after table of a calibration key).
 """
 
 import argparse
@@ -62,18 +65,19 @@ def miscalibrated_copy(source: Path, target: Path, delta: float, n_frames: int) 
     return target
 
 
-def run_scale(sequence_dir: Path, out: Path) -> tuple[float, float]:
-    """Sim(3) scale and path ratio of ``pld-slam run`` on ``sequence_dir`` (default config), run into ``out``."""
-    subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence_dir), "--out", str(out)],
+def run_scale(sequence_dir: Path, out: Path, overrides: list[str]) -> tuple[float, float]:
+    """Sim(3) scale and path ratio of ``pld-slam run`` on ``sequence_dir`` with ``overrides``, run into ``out``."""
+    sets = [argument for override in overrides for argument in ("--set", override)]
+    subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence_dir), "--out", str(out), *sets],
                    check=True, capture_output=True)
     summary = json.loads((out / "summary.json").read_text())
     return summary["sim3_scale"], summary["path_ratio"]
 
 
-def measure(folder: Path, delta: float, run_out: Path | None) -> dict:
+def measure(folder: Path, delta: float, overrides: list[str], run_out: Path | None) -> dict:
     """The self-calibration's outcome on one miscalibrated copy (and its run's scale with ``run_out``)."""
     sequence = open_sequence(folder)
-    estimate = estimate_disparity_offset(sequence, load_run_config(sequence).config)
+    estimate = estimate_disparity_offset(sequence, load_run_config(sequence, overrides=overrides).config)
     row = {
         "frames": len(sequence), "offset in [px]": delta, "estimate [px]": estimate.estimate_px,
         "sigma [px]": estimate.sigma_px, "applied [px]": estimate.offset_px,
@@ -81,7 +85,7 @@ def measure(folder: Path, delta: float, run_out: Path | None) -> dict:
         "not used because": estimate.reason or "-",
     }
     if run_out is not None:
-        row["sim3 scale"], row["path ratio"] = run_scale(folder, run_out)
+        row["sim3 scale"], row["path ratio"] = run_scale(folder, run_out, overrides)
     return row
 
 
@@ -93,6 +97,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--cut", type=int, default=26, help="also measure the first this many frames (0: not)")
     parser.add_argument("--camera", default="kitti")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a configuration override for the estimate and the runs (repeatable)")
     parser.add_argument("--run", action="store_true", help="also run pld-slam on each copy: Sim(3) scale")
     parser.add_argument("--out", type=Path, default=None,
                         help="rendered drives and copies (default: a temporary folder)")
@@ -110,10 +116,11 @@ def main() -> None:
                 name = f"{seed}{d}{c}"
                 copy = miscalibrated_copy(rendered, out / "kitti_odometry" / "sequences" / name, delta, length)
                 run_out = out / "runs" / name if args.run else None
-                rows.append({"seed": seed, **measure(copy, delta, run_out)})
+                rows.append({"seed": seed, **measure(copy, delta, args.overrides, run_out)})
                 print(f"seed {seed}, offset {delta:+.3f} px, {length} frames: done", file=sys.stderr, flush=True)
     table = pd.DataFrame(rows)
-    print(f"# {args.scenario}, {args.camera} camera, self-calibration with the KITTI family's settings; files in {out}")
+    print(f"# {args.scenario}, {args.camera} camera, self-calibration with the KITTI family's settings"
+          f"{', --set ' + ' '.join(args.overrides) if args.overrides else ''}; files in {out}")
     with pd.option_context("display.width", 200, "display.max_columns", 20, "display.max_colwidth", 60):
         print(table.to_string(index=False, float_format=lambda value: f"{value:+.4f}"))
         found = table[table["not used because"] == "-"]
