@@ -148,6 +148,20 @@ def warn_of_lost_frames(summary: dict) -> None:
         click.echo(f"warning: {summary['root']}: {tracking['message']}", err=True)
 
 
+def uncalibrated_rig(summary: dict) -> str | None:
+    """The warning of a run whose rig is known to be off (its family's ``calibration.prior_sigma_px``, KITTI's)
+    but whose disparity offset could not be estimated (a short or fast drive: too few frame pairs); None otherwise.
+    Uncorrected, such an offset scales the whole trajectory (docs/decisions/0006-disparity-offset-self-calibration.md).
+    """
+    estimate = summary["disparity_offset"]
+    prior = summary["config"]["calibration"]["prior_sigma_px"]
+    if estimate is None or estimate["used"] or prior <= 0.0:
+        return None
+    return (f"{summary['root']}: the rig's disparity offset was not estimated ({estimate['reason']}); rigs of "
+            f"this kind are off by about {prior:g} px (calibration.prior_sigma_px), which at 15 px of disparity "
+            f"scales the trajectory by about {100.0 * prior / 15.0:.0f} %: a longer or slower drive gives the estimate")
+
+
 def not_a_stereo_pair(summary: dict) -> str | None:
     """The error of a run whose images are not a stereo pair (`pld_slam.eval.stereo_pair`: swapped, the same
     image twice): the sequence and the check's warning; None for any other verdict, whose warning the table shows."""
@@ -212,7 +226,8 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
     stereo pair (swapped, the same image twice), and one that tracks under 90 % of its
     frames (with 2 lost or more; the error says where the losses start and the likely
     cause); one that tracks under 95 % gets a warning. A pair whose matches leave their rows
-    (a right camera out of sync) gets a warning. --rerun records the run into FILE.rrd
+    (a right camera out of sync) gets a warning, and so does a KITTI-like rig whose disparity
+    offset the sequence was too short or too fast to estimate. --rerun records the run into FILE.rrd
     for the rerun viewer (open it with: rerun FILE.rrd).
     """
     sequence = open_sequence(sequence_path, BagOptions(left_topic, right_topic, gt_topic, calib))
@@ -232,3 +247,5 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
         raise TrackingError(f"{summary['root']}: {tracking['message']}")
     warn_of_stereo_pair(summary)
     warn_of_lost_frames(summary)
+    if (uncalibrated := uncalibrated_rig(summary)) is not None:
+        click.echo(f"warning: {uncalibrated}", err=True)
