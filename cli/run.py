@@ -141,11 +141,17 @@ def parse_formats(ctx: click.Context, param: click.Parameter, value: str) -> tup
     return names
 
 
-def warn_of_lost_frames(summary: dict) -> None:
-    """A ``warning:`` line on stderr when the run lost frames short of an error (`pld_slam.eval.tracked_frames`)."""
+def run_warnings(summary: dict) -> list[str]:
+    """The warnings of a run that ended normally, each a ``warning:`` line on stderr: a stereo pair that
+    disagrees, frames lost short of an error, a rig known to be off left uncorrected."""
+    return [warning for warning in (stereo_pair_warning(summary), lost_frames_warning(summary),
+                                    uncalibrated_rig(summary)) if warning is not None]
+
+
+def lost_frames_warning(summary: dict) -> str | None:
+    """The warning of a run that lost frames short of an error (`pld_slam.eval.tracked_frames`); None otherwise."""
     tracking = summary["tracking"]
-    if tracking["verdict"] == "some_lost":
-        click.echo(f"warning: {summary['root']}: {tracking['message']}", err=True)
+    return f"{summary['root']}: {tracking['message']}" if tracking["verdict"] == "some_lost" else None
 
 
 def uncalibrated_rig(summary: dict) -> str | None:
@@ -169,11 +175,12 @@ def not_a_stereo_pair(summary: dict) -> str | None:
     return f"{summary['root']}: {stereo_pair['warning']}" if stereo_pair["verdict"] == "not_a_pair" else None
 
 
-def warn_of_stereo_pair(summary: dict) -> None:
-    """A ``warning:`` line on stderr when the stereo pair's check warns short of an error (`not_a_stereo_pair`)."""
+def stereo_pair_warning(summary: dict) -> str | None:
+    """The warning of a stereo pair's check that warns short of an error (`not_a_stereo_pair`); None otherwise."""
     stereo_pair = summary["stereo_pair"]
-    if stereo_pair["warning"] is not None and stereo_pair["verdict"] != "not_a_pair":
-        click.echo(f"warning: {summary['root']}: {stereo_pair['warning']}", err=True)
+    if stereo_pair["warning"] is None or stereo_pair["verdict"] == "not_a_pair":
+        return None
+    return f"{summary['root']}: {stereo_pair['warning']}"
 
 
 @click.command("run")
@@ -245,7 +252,5 @@ def run_command(sequence_path: Path, config_paths, overrides, scale: float | Non
         raise DatasetError(not_a_pair)
     if tracking["verdict"] == "few_tracked":
         raise TrackingError(f"{summary['root']}: {tracking['message']}")
-    warn_of_stereo_pair(summary)
-    warn_of_lost_frames(summary)
-    if (uncalibrated := uncalibrated_rig(summary)) is not None:
-        click.echo(f"warning: {uncalibrated}", err=True)
+    for warning in run_warnings(summary):
+        click.echo(f"warning: {warning}", err=True)
