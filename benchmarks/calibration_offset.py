@@ -24,14 +24,14 @@ estimator itself, which the real extracts cannot (KITTI 04's ground-truth motion
 """
 
 import argparse
-import json
-import subprocess
+import shutil
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from speed import cli_run
 
 from pld_slam.datasets import open_sequence
 from pld_slam.run_config import load_run_config
@@ -42,13 +42,12 @@ from pld_slam.synth.writer import ensure_sequence
 def miscalibrated_copy(source: Path, target: Path, delta: float, n_frames: int) -> Path:
     """A KITTI odometry sequence ``target`` (``.../sequences/NN``) of the first ``n_frames`` frames of
     ``source``, images linked, ``P1``'s principal point column moved by ``delta`` [px], its ground
-    truth in ``.../poses/NN.txt``."""
+    truth in ``.../poses/NN.txt``; a copy an earlier call left there is replaced."""
+    shutil.rmtree(target, ignore_errors=True)
     for camera in ("image_0", "image_1"):
-        (target / camera).mkdir(parents=True, exist_ok=True)
+        (target / camera).mkdir(parents=True)
         for index in range(n_frames):
-            link = target / camera / f"{index:06d}.png"
-            if not link.exists():
-                link.symlink_to(source / camera / f"{index:06d}.png")
+            (target / camera / f"{index:06d}.png").symlink_to(source / camera / f"{index:06d}.png")
     rows = []
     for line in (source / "calib.txt").read_text().splitlines():
         if line.startswith("P1:"):
@@ -65,15 +64,6 @@ def miscalibrated_copy(source: Path, target: Path, delta: float, n_frames: int) 
     return target
 
 
-def run_scale(sequence_dir: Path, out: Path, overrides: list[str]) -> tuple[float, float]:
-    """Sim(3) scale and path ratio of ``pld-slam run`` on ``sequence_dir`` with ``overrides``, run into ``out``."""
-    sets = [argument for override in overrides for argument in ("--set", override)]
-    subprocess.run([sys.executable, "-m", "pld_slam_cli", "run", str(sequence_dir), "--out", str(out), *sets],
-                   check=True, capture_output=True)
-    summary = json.loads((out / "summary.json").read_text())
-    return summary["sim3_scale"], summary["path_ratio"]
-
-
 def measure(folder: Path, delta: float, overrides: list[str], run_out: Path | None) -> dict:
     """The self-calibration's outcome on one miscalibrated copy (and its run's scale with ``run_out``)."""
     sequence = open_sequence(folder)
@@ -85,7 +75,8 @@ def measure(folder: Path, delta: float, overrides: list[str], run_out: Path | No
         "not used because": estimate.reason or "-",
     }
     if run_out is not None:
-        row["sim3 scale"], row["path ratio"] = run_scale(folder, run_out, overrides)
+        _, summary = cli_run(folder, run_out, *(argument for override in overrides for argument in ("--set", override)))
+        row["sim3 scale"], row["path ratio"] = summary["sim3_scale"], summary["path_ratio"]
     return row
 
 
